@@ -1,0 +1,46 @@
+# tvsd — `make run` (the main job, on the simulated plant) and `make test` (the whole suite).
+# Both set themselves up on a fresh machine: a .venv, the Python packages, and (for the
+# firmware) the distribution's AVR toolchain and simavr.
+
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: run test lint pytest firmware-test system-deps bench clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[test]'
+	touch $@
+
+# The main job. Until the daemon lands, a spin-up of the simulated scanning aperture to
+# 25 rev/s with the once-per-revolution imbalance on: a table, and a plot in run-spin.png.
+run: $(STAMP)
+	$(BIN)/tvsctl sim spin --rps 25 --seconds 6 --effect imbalance:amplitude=6e-5,phase=0.5 \
+		--plot run-spin.png
+
+system-deps:
+	scripts/install-system-deps.sh
+
+test: $(STAMP) system-deps lint pytest firmware-test
+
+lint: $(STAMP)
+	$(BIN)/ruff check tvsd tests
+	$(BIN)/mypy
+
+pytest: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+firmware-test: system-deps
+	@if [ -f firmware/Makefile ]; then $(MAKE) -C firmware all test; fi
+
+bench: $(STAMP)
+	$(BIN)/tvsctl bench
+
+clean:
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache run-spin.png
+	find . -name __pycache__ -type d -prune -exec rm -rf {} +

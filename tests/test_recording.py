@@ -1,0 +1,71 @@
+"""The recording CSV contract: round trip, and one clear line for every kind of bad file."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tvsd.errors import DataFileError
+from tvsd.recording import read, write
+
+GOOD = "# tvs-recording: 1\n# sample_rate_hz: 1000\n# rps_setpoint: 20\nt,u,omega,phi\n"
+
+
+def _rows(n: int = 5) -> str:
+    return "".join(f"{k / 1000:.3f},1.0,{2.0 + k},{0.01 * k}\n" for k in range(n))
+
+
+def test_round_trip_keeps_columns_and_metadata(tmp_path):
+    t = np.arange(100) / 1000
+    path = tmp_path / "r.csv"
+    write(path, t, np.sin(t), np.cos(t), t * 2, 1000, {"gamma_deg": 15}, {"i": t * 3})
+    rec = read(path)
+    assert np.allclose(rec.omega, np.cos(t)) and np.allclose(rec.extra["i"], t * 3)
+    assert rec.meta["gamma_deg"] == "15" and rec.phi_measured
+
+
+def test_phi_is_integrated_from_omega_when_absent(tmp_path):
+    path = tmp_path / "r.csv"
+    path.write_text(
+        "# tvs-recording: 1\n# sample_rate_hz: 100\nt,u,omega\n"
+        + "".join(f"{k / 100},0,2.0\n" for k in range(11))
+    )
+    rec = read(path)
+    assert not rec.phi_measured and rec.phi[-1] == pytest.approx(0.2)
+
+
+@pytest.mark.parametrize(
+    "text,row,needle",
+    [
+        ("t,u,omega\n0,0,0\n", 1, "expected '# tvs-recording: 1'"),
+        ("# tvs-recording: 1\nt,u,omega\n0,0,0\n", 2, "missing '# sample_rate_hz"),
+        ("# tvs-recording: 1\n# sample_rate_hz: fast\nt,u\n", 2, "positive number"),
+        (
+            "# tvs-recording: 1\n# sample_rate_hz: 1000\nt,u,phi\n0,0,0\n0.001,0,0\n",
+            3,
+            "missing column(s) omega",
+        ),
+        (GOOD + "0,1,2,3\n0.001,1,nan,3\n", 6, "NaN"),
+        (GOOD + "0,1,2,3\n0.001,1,2\n", 6, "3 values, the header has 4"),
+        (GOOD + "0,1,2,3\n0.001,1,x,3\n", 6, "not a number"),
+        (GOOD + "0,1,2,3\n0.001,1,2,3\n0.0005,1,2,3\n", 7, "does not increase"),
+        (GOOD + "0,1,2,3\n0.001,1,2,3\n0.003,1,2,3\n", 7, "differs from 1/sample_rate_hz"),
+        (GOOD + "0,1,2,3\n", 5, "at least 2"),
+    ],
+)
+def test_bad_files_name_file_row_and_problem(tmp_path, text, row, needle):
+    path = tmp_path / "bad.csv"
+    path.write_text(text)
+    with pytest.raises(DataFileError) as info:
+        read(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: row {row}: ") and needle in message
+
+
+def test_missing_and_binary_files(tmp_path):
+    with pytest.raises(DataFileError, match="no such file"):
+        read(tmp_path / "none.csv")
+    binary = tmp_path / "b.csv"
+    binary.write_bytes(b"\xff\xfe\x00\x01")
+    with pytest.raises(DataFileError, match="not a text file"):
+        read(binary)

@@ -1,0 +1,47 @@
+"""`tvsctl bench`: the benchmark suite (figures for README's Performance section)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+from collections.abc import Callable
+from typing import Any
+
+from tvsd.cli.output import print_json, print_pairs
+from tvsd.errors import EXIT_OK
+
+
+def _sim() -> dict[str, Any]:
+    from tvsd.sim import bench
+
+    out = bench.sim_realtime_factor()
+    out["control_step_ns"] = bench.control_step_ns()
+    out["cli_warm_start_s"] = bench.cli_warm_start_s()
+    return out
+
+
+# name -> function returning a flat dict of figures; one line per benchmark group.
+BENCHES: dict[str, Callable[[], dict[str, Any]]] = {
+    "sim": _sim,
+}
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser("bench", help="run the benchmarks and print the figures")
+    p.add_argument("--only", choices=sorted(BENCHES), action="append", help="run only these groups")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    figures: dict[str, Any] = {
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    }
+    for name in args.only or BENCHES:
+        figures.update(BENCHES[name]())
+    if args.json:
+        print_json(figures)
+    else:
+        print_pairs(figures)
+    return EXIT_OK

@@ -1,0 +1,66 @@
+"""tvsctl — the command line of tvsd.
+
+Subcommands live in one module each, listed in COMMANDS (one line per command, like python-can's
+BACKENDS table). Each module offers ``register(subparsers)`` and sets ``func`` on its parser; the
+function returns an exit status. Errors derived from TvsdError become one line on stderr and their
+documented exit status; anything else is a bug and says so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from tvsd import __version__
+from tvsd.errors import EXIT_INTERNAL, EXIT_USAGE, TvsdError
+
+# command name -> module offering register(subparsers)
+COMMANDS: dict[str, str] = {
+    "sim": "tvsd.cli.sim",
+    "bench": "tvsd.cli.bench",
+}
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that exits with EXIT_USAGE and a one-line hint, as every bad input should."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.print_usage(sys.stderr)
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="tvsctl", description="Command line of the TVS scanner daemon tvsd.")
+    parser.add_argument("--version", action="version", version=f"tvsctl {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    for module_name in COMMANDS.values():
+        importlib.import_module(module_name).register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        status: int = args.func(args)
+    except TvsdError as exc:
+        print(f"tvsctl: {exc}", file=sys.stderr)
+        return exc.exit_status
+    except KeyboardInterrupt:
+        print("tvsctl: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 0
+    except Exception as exc:  # a bug: say so plainly, with enough to report it
+        print(f"tvsctl: internal error ({type(exc).__name__}: {exc}); please report it", file=sys.stderr)
+        if "--debug" in sys.argv:
+            raise
+        return EXIT_INTERNAL
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())

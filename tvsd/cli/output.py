@@ -1,0 +1,55 @@
+"""Output of tvsctl commands: one JSON object with --json, an aligned table otherwise."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+
+def _clean(obj: Any) -> Any:
+    """JSON has no NaN/inf: write null, as scripts expect."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, Mapping):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if hasattr(obj, "item"):  # numpy scalars
+        return _clean(obj.item())
+    return obj
+
+
+def print_json(obj: Mapping[str, Any]) -> None:
+    print(json.dumps(_clean(obj), indent=None, sort_keys=False))
+
+
+def fmt(value: Any) -> str:
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            return "—"
+        return f"{value:.4g}"
+    return str(value)
+
+
+def print_table(rows: Sequence[Sequence[Any]], headers: Sequence[str] | None = None) -> None:
+    cells = [[fmt(v) for v in r] for r in rows]
+    if headers:
+        cells.insert(0, list(headers))
+    widths = [max(len(r[j]) for r in cells) for j in range(len(cells[0]))]
+    for n, r in enumerate(cells):
+        print(
+            "  ".join(c.rjust(w) if j else c.ljust(w) for j, (c, w) in enumerate(zip(r, widths, strict=True)))
+        )
+        if headers and n == 0:
+            print("  ".join("-" * w for w in widths))
+
+
+def print_pairs(pairs: Mapping[str, Any]) -> None:
+    print_table([(k, v) for k, v in pairs.items()])
+
+
+def warn(message: str) -> None:
+    print(f"warning: {message}", file=sys.stderr)

@@ -1,0 +1,221 @@
+"""`tvsctl sim …`: offline runs of the drive model (no daemon needed)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+from tvsd.cli.output import print_json, print_pairs, print_table, warn
+from tvsd.config import Config, Gains, load_config
+from tvsd.errors import EXIT_OK, UsageError
+from tvsd.model.effects import Effect, catalogue_help, parse_effects
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    sim = sub.add_parser(
+        "sim",
+        help="offline simulation of the scanning-aperture drive",
+        description="Offline runs of the drive model and the robust controller.",
+    )
+    simsub = sim.add_subparsers(dest="sim_command", metavar="RUN", parser_class=type(sim))
+    simsub.required = True
+
+    def common(p: argparse.ArgumentParser, params_default: str = "default") -> None:
+        p.add_argument("--config", type=Path, help="scanner config file (default: config/tvsd.yaml)")
+        p.add_argument(
+            "--params",
+            choices=("default", "paper"),
+            default=params_default,
+            help=f"parameter set when --config is not given (default: {params_default})",
+        )
+        p.add_argument("--json", action="store_true", help="print one JSON object")
+        p.add_argument("--plot", type=Path, metavar="FILE.png", help="draw the figure into FILE.png")
+
+    step = simsub.add_parser("step", help="position step response (paper Table 6, Figs. 14–16)")
+    common(step)
+    step.add_argument("--ref-deg", type=float, required=True, help="reference position, degrees")
+    step.add_argument("--gains", type=_gains, metavar="Gp,Gd,Gr,G0", help="override the config's gains")
+    step.add_argument("--seconds", type=float, default=1.0, help="simulated time (default 1 s)")
+    step.set_defaults(func=_step)
+
+    t6 = simsub.add_parser("table6", help="reproduce the paper's Table 6 (settling times)")
+    common(t6, params_default="paper")
+    t6.add_argument("--ku", type=float, help="drive gain ku (default: the config's table6_ku)")
+    t6.set_defaults(func=_table6)
+
+    eff_help = "switch an effect on (repeatable), NAME:key=value,...; effects:\n" + catalogue_help()
+    spin = simsub.add_parser(
+        "spin",
+        help="spin up to a speed; speed steadiness and vibration line",
+        formatter_class=argparse.RawTextHelpFormatter,
+    )
+    common(spin)
+    spin.add_argument("--rps", type=float, required=True, help="speed setpoint, rev/s")
+    spin.add_argument("--seconds", type=float, default=10.0, help="simulated time (default 10 s)")
+    spin.add_argument("--effect", action="append", default=None, metavar="NAME:k=v,...", help=eff_help)
+    spin.add_argument("--seed", type=int, help="random seed (default: the SIL profile's)")
+    spin.set_defaults(func=_spin)
+
+    rec = simsub.add_parser(
+        "record",
+        help="write a SIL recording (recording CSV contract)",
+        formatter_class=argparse.RawTextHelpFormatter,
+    )
+    rec.add_argument("--config", type=Path, help="scanner config file (default: config/tvsd.yaml)")
+    rec.add_argument("--params", choices=("default", "paper"), default="default")
+    rec.add_argument("--out", type=Path, required=True, metavar="FILE.csv")
+    rec.add_argument(
+        "--profile",
+        choices=("steps", "spin"),
+        default="steps",
+        help="steps: open-loop voltage staircase; spin: scanning mode to --rps",
+    )
+    rec.add_argument("--rps", type=float, default=20.0, help="spin profile speed (default 20 rev/s)")
+    rec.add_argument("--seconds", type=float, default=60.0, help="length (default 60 s)")
+    rec.add_argument("--effect", action="append", default=None, metavar="NAME:k=v,...", help=eff_help)
+    rec.add_argument("--seed", type=int, default=1)
+    rec.add_argument("--json", action="store_true")
+    rec.set_defaults(func=_record)
+
+
+def _gains(text: str) -> Gains:
+    parts = text.split(",")
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not four numbers Gp,Gd,Gr,G0") from None
+    if len(values) != 4 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(
+            f"'{text}' must be four numbers Gp,Gd,Gr,G0, e.g. 6.31,0.5,18.89,100"
+        )
+    if min(values[:3]) < 0 or values[3] <= 0:
+        raise argparse.ArgumentTypeError(f"'{text}': Gp, Gd, Gr must be ≥ 0 and G0 > 0")
+    return Gains(Gp=values[0], Gd=values[1], Gr=values[2], G0=values[3])
+
+
+def _config(args: argparse.Namespace) -> Config:
+    return load_config(args.config) if args.config else load_config(params=args.params)
+
+
+def _effects(args: argparse.Namespace) -> tuple[Effect, ...] | None:
+    return None if args.effect is None else parse_effects(args.effect)
+
+
+def _seconds(value: float, lo: float, hi: float) -> float:
+    if not lo <= value <= hi:
+        raise UsageError(f"--seconds {value:g} is outside [{lo:g}, {hi:g}] s")
+    return value
+
+
+def _step(args: argparse.Namespace) -> int:
+    from tvsd.sim import experiments
+
+    cfg = _config(args)
+    res = experiments.step(cfg, args.ref_deg, args.seconds, gains=args.gains)
+    if args.plot:
+        from tvsd.sim.plots import step_plot
+
+        g = args.gains or cfg.control.gains
+        step_plot(
+            res.trace,
+            math.radians(args.ref_deg),
+            f"{cfg.plant.name}: step to {args.ref_deg:g}° "
+            f"(Gp,Gd,Gr,G0 = {g.Gp:g},{g.Gd:g},{g.Gr:g},{g.G0:g})",
+            args.plot,
+        )
+    if args.json:
+        print_json(res.as_dict())
+    else:
+        for w in res.warnings:
+            warn(w)
+        print_pairs(
+            {
+                "reference (deg)": res.ref_deg,
+                "settling time 2 % (s)": res.settling_time_s,
+                "overshoot (%)": res.overshoot_pct,
+                "final (deg)": res.final_deg,
+            }
+        )
+    return EXIT_OK
+
+
+def _table6(args: argparse.Namespace) -> int:
+    from tvsd.sim import experiments
+
+    res = experiments.table6(_config(args), ku=args.ku)
+    if args.plot:
+        raise UsageError("table6 draws no figure; use `tvsctl sim step --plot` for one reference")
+    if args.json:
+        print_json(res.as_dict())
+        return EXIT_OK
+    print(f"Table 6 reproduction (ku = {res.ku:g}, gains {res.gains.as_tuple()}, 2 % band)")
+    print_table(
+        [(r.ref_deg, r.paper_s, r.ours_s, f"{r.error_pct:+.1f}") for r in res.rows],
+        ["ref (deg)", "paper (s)", "ours (s)", "error (%)"],
+    )
+    print(f"rms error: {res.rms_error_pct:.2f} %")
+    return EXIT_OK
+
+
+def _spin(args: argparse.Namespace) -> int:
+    from tvsd.sim import experiments
+
+    cfg = _config(args)
+    res = experiments.spin(cfg, args.rps, args.seconds, effects=_effects(args), seed=args.seed)
+    if args.plot:
+        from tvsd.sim.plots import spin_plot
+
+        spin_plot(
+            res.trace,
+            args.rps,
+            res.steady_from_s,
+            res.spectrum,
+            res.dominant_hz,
+            f"{cfg.plant.name}: spin at {args.rps:g} rev/s, effects: {', '.join(res.effects) or 'none'}",
+            args.plot,
+        )
+    if args.json:
+        print_json(res.as_dict())
+        return EXIT_OK
+    print_pairs(
+        {
+            "speed setpoint (rev/s)": args.rps,
+            "speed mean (rev/s)": res.rps_mean,
+            "speed std (rev/s)": res.rps_std,
+            "ω std (rad/s)": res.omega_std_rad_s,
+            "dominant vibration line (Hz)": res.dominant_hz,
+            "its amplitude (rad/s²)": res.dominant_amplitude_rad_s2,
+            "steady from (s)": res.steady_from_s,
+            "vibration model": res.vibration_model,
+            "effects": ", ".join(res.effects) or "none",
+        }
+    )
+    if args.plot:
+        print(f"plot: {args.plot}")
+    return EXIT_OK
+
+
+def _record(args: argparse.Namespace) -> int:
+    from tvsd.sim.record import record
+
+    cfg = _config(args)
+    seconds = _seconds(args.seconds, 1.0, 3600.0)
+    effects = _effects(args) or ()
+    res = record(cfg, args.out, args.profile, seconds, effects, args.seed, args.rps, args.params)
+    if args.json:
+        print_json(
+            {
+                "path": str(res.path),
+                "profile": res.profile,
+                "seconds": res.seconds,
+                "rows": res.rows,
+                "sample_rate_hz": res.sample_rate_hz,
+            }
+        )
+    else:
+        print(
+            f"wrote {res.rows} rows ({res.seconds:g} s at {res.sample_rate_hz:g} Hz, profile "
+            f"{res.profile}) to {res.path}"
+        )
+    return EXIT_OK

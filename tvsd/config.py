@@ -1,0 +1,187 @@
+"""Configuration: YAML files in config/ → validated, frozen objects.
+
+Three files ship in config/ (each documented key by key there):
+- ``tvsd.yaml``  the scanner: the physically consistent default plant, drive, control, geometry,
+  and a pointer to its SIL profile;
+- ``sil.yaml``   the simulated plant's environment: vibration, measurement, effects, seed;
+- ``paper.yaml`` the paper's parameter set (Table 3 Exp1) and the tables tvsd reproduces.
+The numbers and where each comes from are in the files; the decisions are in MODEL-NOTES.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from tvsd.errors import ConfigError, UsageError
+from tvsd.schema import Where, build, load_yaml, option
+
+
+@dataclass(frozen=True, kw_only=True)
+class PlantParams:
+    """The scanning-aperture drive, paper eqs. (9)–(11) and (15)–(16) in SI units."""
+
+    name: str = option(doc="name of the parameter set")
+    J: float = option(doc="inertia of motor + aperture", unit="kg·m²", gt=0)
+    kv: float = option(doc="viscous friction", unit="N·m·s/rad", ge=0)
+    kM: float = option(doc="torque constant", unit="N·m/A", gt=0)
+    kb: float = option(doc="back-EMF constant", unit="V·s/rad", gt=0)
+    R: float = option(doc="armature resistance", unit="Ω", gt=0)
+    L: float = option(doc="armature inductance", unit="H", gt=0)
+    ku: float = option(doc="drive voltage gain", unit="V/V", gt=0)
+    tau_c: float = option(doc="Coulomb friction torque", unit="N·m", ge=0)
+    tau_s: float = option(doc="stiction torque", unit="N·m", ge=0)
+    sigma0: float = option(doc="LuGre bristle stiffness", unit="N·m/rad", gt=0)
+    sigma1: float = option(doc="LuGre bristle damping", unit="N·m·s/rad", ge=0)
+    sigma2: float = option(0.0, doc="LuGre viscous term", unit="N·m·s/rad", ge=0)
+    v0: float = option(doc="Stribeck velocity", unit="rad/s", gt=0)
+    source: str = option("", doc="where the numbers come from")
+
+    def __post_init__(self) -> None:
+        if self.tau_c + self.tau_s <= 0:
+            raise UsageError(f"plant {self.name}: tau_c and tau_s are both 0; LuGre needs g(ω) > 0")
+
+
+@dataclass(frozen=True, kw_only=True)
+class DriveConfig:
+    u_max_v: float = option(12.0, doc="drive voltage limit ±U", unit="V", gt=0, le=400)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Gains:
+    """Gains of the robust law u = Gp·tanh(ε) + Gd·tanh(ε̇) + Gr·tanh(G0·ε) (paper eq. 18)."""
+
+    Gp: float = option(doc="proportional gain", unit="V", ge=0)
+    Gd: float = option(doc="derivative gain", unit="V", ge=0)
+    Gr: float = option(doc="robust gain", unit="V", ge=0)
+    G0: float = option(doc="sharpness factor", unit="1/rad", gt=0)
+
+    def as_tuple(self) -> tuple[float, float, float, float]:
+        return (self.Gp, self.Gd, self.Gr, self.G0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ControlConfig:
+    rate_hz: float = option(10000.0, doc="control loop rate", unit="Hz", ge=100, le=100000)
+    gains: Gains = option(doc="robust law gains")
+    disturbance_bound_rad_s2: float = option(
+        1.65, doc="Δv_max for condition (23), paper's largest measured value", unit="rad/s²", ge=0
+    )
+    scan_accel_rps2: float = option(10.0, doc="speed-reference ramp in scanning mode", unit="rev/s²", gt=0)
+    scan_feedforward: bool = option(
+        True, doc="scanning mode adds the model's steady voltage to the law's output (README)"
+    )
+    max_lag_rad: float = option(
+        math.pi, doc="scanning mode: the reference slips beyond this lag (anti-windup)", unit="rad", gt=0
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class GeometryConfig:
+    baseline_m: float = option(0.5, doc="baseline a between PL and SA (MODEL-NOTES §6)", unit="m", gt=0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class VibrationConfig:
+    model: str = option("ou", doc="Δv model (MODEL-NOTES §4)", choices=("off", "sde", "ou"))
+    sigma_v: float = option(0.3381, doc="σv: std (ou, rad/s²) or SDE intensity (sde, rad/s^1.5)", ge=0)
+    tau_n_s: float = option(0.005, doc="OU correlation time", unit="s", gt=0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class MeasurementConfig:
+    sample_rate_hz: float = option(1000.0, doc="recording rate", unit="Hz", gt=0, le=100000)
+    encoder_counts_per_rev: int = option(8192, doc="encoder counts per revolution (×4)", ge=4)
+    speed_noise_rad_s: float = option(0.02, doc="speed measurement noise std", unit="rad/s", ge=0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SilConfig:
+    vibration: VibrationConfig = option(VibrationConfig())
+    measurement: MeasurementConfig = option(MeasurementConfig())
+    effects: tuple[str, ...] = option([], doc='effects on, as "name:key=value,..." (tvsctl sim --help)')
+    seed: int = option(1, doc="random seed of the simulated plant", ge=0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Reproduction:
+    """Figures of the paper that `tvsctl sim` reproduces (paper.yaml only)."""
+
+    table6_refs_deg: tuple[float, ...] = option([], doc="Table 6 reference positions", unit="deg")
+    table6_settling_s: tuple[float, ...] = option([], doc="Table 6 settling times", unit="s")
+    table6_ku: float = option(10.0, doc="ku that reproduces Table 6 (MODEL-NOTES §3)", gt=0)
+    open_loop_ku: float = option(166.0, doc="ku of the open-loop runs (MODEL-NOTES §3)", gt=0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Config:
+    plant: PlantParams = option(doc="drive parameters")
+    drive: DriveConfig = option(DriveConfig())
+    control: ControlConfig = option(doc="control loop")
+    geometry: GeometryConfig = option(GeometryConfig())
+    sil_profile: str | None = option(None, doc="SIL profile file, relative to this file")
+    sil: SilConfig | None = option(None, doc="SIL profile inline (instead of sil_profile)")
+    reproduction: Reproduction | None = option(None, doc="paper figures to reproduce")
+
+    @property
+    def sil_or_default(self) -> SilConfig:
+        return self.sil if self.sil is not None else SilConfig()
+
+
+def config_dir() -> Path:
+    """Where the shipped config files are: $TVSD_CONFIG_DIR, the source tree, or /etc/tvsd."""
+    env = os.environ.get("TVSD_CONFIG_DIR")
+    if env:
+        return Path(env)
+    in_tree = Path(__file__).resolve().parent.parent / "config"
+    return in_tree if in_tree.is_dir() else Path("/etc/tvsd")
+
+
+PARAM_SETS = {"default": "tvsd.yaml", "paper": "paper.yaml"}
+
+
+def load_config(path: str | Path | None = None, *, params: str | None = None) -> Config:
+    """Load a scanner config: an explicit file, or a named parameter set (default / paper)."""
+    if path is None:
+        name = params or "default"
+        if name not in PARAM_SETS:
+            raise UsageError(f"unknown parameter set '{name}'; choose one of {', '.join(PARAM_SETS)}")
+        path = config_dir() / PARAM_SETS[name]
+    path = Path(path)
+    data = load_yaml(path)
+    cfg: Config = build(Config, data, Where(path, data.line, ""))
+    if cfg.sil is not None and cfg.sil_profile is not None:
+        line = data.key_lines.get("sil", data.line)
+        raise ConfigError(f"{path}:{line}: sil: give either 'sil' or 'sil_profile', not both")
+    if cfg.sil_profile is not None:
+        profile = path.parent / cfg.sil_profile
+        if not profile.is_file():
+            line = data.key_lines.get("sil_profile", data.line)
+            raise ConfigError(
+                f"{path}:{line}: sil_profile: no such file {profile}; "
+                f"give a file path relative to {path.name}"
+            )
+        cfg = dataclasses.replace(cfg, sil=load_sil_profile(profile))
+    _check_effects(cfg.sil_or_default, path, data)
+    return cfg
+
+
+def load_sil_profile(path: Path) -> SilConfig:
+    data = load_yaml(path)
+    sil: SilConfig = build(SilConfig, data, Where(path, data.line, ""))
+    _check_effects(sil, path, data)
+    return sil
+
+
+def _check_effects(sil: SilConfig, path: Path, data: dict[str, object]) -> None:
+    from tvsd.model.effects import parse_effects  # the effects library owns the syntax
+
+    try:
+        parse_effects(sil.effects)
+    except UsageError as exc:
+        lines = getattr(data, "key_lines", {})
+        line = lines.get("effects", lines.get("sil", 1))
+        raise ConfigError(f"{path}:{line}: effects: {exc}") from None

@@ -1,0 +1,1 @@
+"""tvsd.daemon"""

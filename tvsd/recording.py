@@ -1,0 +1,170 @@
+"""The recording CSV of DESIGN.md: written by `tvsctl sim record` / `tvsctl export`, read by analyze.
+
+    # tvs-recording: 1
+    # sample_rate_hz: 1000
+    # <key>: <value>            optional metadata
+    t,u,omega,phi[,more...]     SI: s, V, rad/s, rad (phi optional: integrated from omega)
+
+A bad file raises DataFileError with one line naming the file, the row (1-based line of the file)
+and the problem; the command line turns it into exit status 2.
+For numpy users: ``numpy.genfromtxt(path, delimiter=",", names=True, comments="#")``; pandas:
+``pandas.read_csv(path, comment="#")``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tvsd.errors import DataFileError
+
+FORMAT_VERSION = "1"
+REQUIRED = ("t", "u", "omega")
+Failer = Callable[[int, str], DataFileError]  # (row, problem) -> the error to raise
+
+
+@dataclass(frozen=True)
+class Recording:
+    t: np.ndarray
+    u: np.ndarray
+    omega: np.ndarray
+    phi: np.ndarray
+    sample_rate_hz: float
+    meta: Mapping[str, str] = field(default_factory=dict)
+    extra: Mapping[str, np.ndarray] = field(default_factory=dict)
+    path: Path | None = None
+    phi_measured: bool = True  # False: phi was integrated from omega
+
+
+def write(
+    path: Path,
+    t: np.ndarray,
+    u: np.ndarray,
+    omega: np.ndarray,
+    phi: np.ndarray | None,
+    sample_rate_hz: float,
+    meta: Mapping[str, object] | None = None,
+    extra: Mapping[str, np.ndarray] | None = None,
+) -> None:
+    columns: dict[str, np.ndarray] = {"t": t, "u": u, "omega": omega}
+    if phi is not None:
+        columns["phi"] = phi
+    columns.update(extra or {})
+    lines = [f"# tvs-recording: {FORMAT_VERSION}", f"# sample_rate_hz: {sample_rate_hz:g}"]
+    lines += [f"# {k}: {v}" for k, v in (meta or {}).items()]
+    data = np.column_stack([np.asarray(c, dtype=float) for c in columns.values()])
+    path = Path(path)
+    try:
+        with path.open("w", encoding="utf-8") as fh:
+            fh.write("\n".join(lines) + "\n" + ",".join(columns) + "\n")
+            np.savetxt(fh, data, delimiter=",", fmt="%.9g")
+    except OSError as exc:
+        raise DataFileError(f"{path}: cannot write the recording: {exc.strerror}") from exc
+
+
+def read(path: Path) -> Recording:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise DataFileError(f"{path}: no such file") from None
+    except UnicodeDecodeError:
+        raise DataFileError(f"{path}: not a text file (expected a tvs recording CSV)") from None
+    except OSError as exc:
+        raise DataFileError(f"{path}: cannot read: {exc.strerror}") from exc
+    lines = text.splitlines()
+
+    def fail(row: int, problem: str) -> DataFileError:
+        return DataFileError(f"{path}: row {row}: {problem}")
+
+    if not lines or lines[0].replace(" ", "") != f"#tvs-recording:{FORMAT_VERSION}":
+        seen = lines[0][:60] if lines else "an empty file"
+        raise fail(
+            1,
+            f"expected '# tvs-recording: {FORMAT_VERSION}' as the first line, got {seen!r}"
+            " (is this a tvs recording? see DESIGN.md 'Recording CSV')",
+        )
+    meta: dict[str, str] = {}
+    row = 1
+    while row < len(lines) and lines[row].startswith("#"):
+        key, colon, value = lines[row][1:].partition(":")
+        if not colon:
+            raise fail(row + 1, f"metadata line {lines[row]!r} is not '# key: value'")
+        meta[key.strip()] = value.strip()
+        row += 1
+    if "sample_rate_hz" not in meta:
+        raise fail(2, "missing '# sample_rate_hz: <Hz>' metadata line")
+    try:
+        rate = float(meta["sample_rate_hz"])
+    except ValueError:
+        rate = math.nan
+    if not (math.isfinite(rate) and rate > 0):
+        raise fail(2, f"sample_rate_hz must be a positive number, got {meta['sample_rate_hz']!r}")
+    if row >= len(lines):
+        raise fail(row + 1, "missing the column header line (t,u,omega[,phi,...])")
+    header = [h.strip() for h in lines[row].split(",")]
+    missing = [c for c in REQUIRED if c not in header]
+    if missing:
+        raise fail(
+            row + 1,
+            f"missing column(s) {', '.join(missing)} in header {lines[row]!r} (need t,u,omega; phi optional)",
+        )
+    if len(set(header)) != len(header):
+        raise fail(row + 1, f"duplicate column names in header {lines[row]!r}")
+    data = _parse_rows(lines, row + 1, len(header), fail)
+    cols = {name: data[:, j] for j, name in enumerate(header)}
+    _check_time(cols["t"], rate, row + 2, fail)
+    phi_measured = "phi" in cols
+    if phi_measured:
+        phi = cols["phi"]
+    else:
+        dt = np.diff(cols["t"])
+        phi = np.concatenate([[0.0], np.cumsum(0.5 * (cols["omega"][1:] + cols["omega"][:-1]) * dt)])
+    extra = {k: v for k, v in cols.items() if k not in ("t", "u", "omega", "phi")}
+    return Recording(cols["t"], cols["u"], cols["omega"], phi, rate, meta, extra, path, phi_measured)
+
+
+def _parse_rows(lines: list[str], first: int, width: int, fail: Failer) -> np.ndarray:
+    body = [ln for ln in lines[first:]]
+    while body and not body[-1].strip():
+        body.pop()
+    if len(body) < 2:
+        raise fail(first + 1, f"only {len(body)} data row(s); a recording needs at least 2")
+    data = np.empty((len(body), width))
+    for k, line in enumerate(body):
+        parts = line.split(",")
+        if len(parts) != width:
+            raise fail(first + k + 1, f"{len(parts)} values, the header has {width} columns")
+        try:
+            data[k] = [float(p) for p in parts]
+        except ValueError:
+            raise fail(first + k + 1, f"not a number in {line[:80]!r}") from None
+        if not np.all(np.isfinite(data[k])):
+            raise fail(first + k + 1, f"NaN or infinite value in {line[:80]!r}; remove or repair the row")
+    return data
+
+
+def _check_time(t: np.ndarray, rate: float, first_row: int, fail: Failer) -> None:
+    dt = np.diff(t)
+    bad = np.nonzero(dt <= 0)[0]
+    if len(bad):
+        k = int(bad[0]) + 1
+        raise fail(
+            first_row + k,
+            f"t = {t[k]:g} s does not increase (previous {t[k - 1]:g} s); t must be strictly increasing",
+        )
+    # Uniform within 1 % of a period: looser would hide dropped samples, tighter would trip on
+    # the 9 significant digits the writer keeps.
+    period = 1.0 / rate
+    off = np.nonzero(np.abs(dt - period) > 0.01 * period)[0]
+    if len(off):
+        k = int(off[0]) + 1
+        raise fail(
+            first_row + k,
+            f"time step {dt[k - 1]:g} s differs from 1/sample_rate_hz = {period:g} s"
+            " (missing samples, or wrong sample_rate_hz / time unit: t is in seconds)",
+        )

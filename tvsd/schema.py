@@ -1,0 +1,191 @@
+"""Typed, range-checked reading of YAML into frozen dataclasses, with file and line in every error.
+
+Every config section is a frozen dataclass whose fields carry their own rule (see `option`): the
+unit, the range, the allowed choices and one line of doc. `build` walks the YAML mapping against
+the dataclass, rejects unknown keys (suggesting the closest known one), wrong types and values out
+of range — Klipper's `configfile.py` typed getters are the model (STYLE.md §2).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from tvsd.errors import ConfigError
+
+
+def option(
+    default: Any = dataclasses.MISSING,
+    *,
+    doc: str = "",
+    unit: str = "",
+    gt: float | None = None,
+    ge: float | None = None,
+    lt: float | None = None,
+    le: float | None = None,
+    choices: tuple[str, ...] | None = None,
+) -> Any:
+    """A dataclass field with its validation rule."""
+    meta = {"doc": doc, "unit": unit, "gt": gt, "ge": ge, "lt": lt, "le": le, "choices": choices}
+    if isinstance(default, (list, dict)):
+        frozen = tuple(default) if isinstance(default, list) else default
+        return field(default_factory=lambda: frozen, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+class LinedDict(dict[str, Any]):
+    """A YAML mapping that remembers the line of each key (1-based) and of itself."""
+
+    line: int = 0
+    key_lines: dict[str, int]
+
+
+class _LineLoader(yaml.SafeLoader):
+    pass
+
+
+def _construct_mapping(loader: _LineLoader, node: yaml.MappingNode) -> LinedDict:
+    loader.flatten_mapping(node)
+    result = LinedDict()
+    result.line = node.start_mark.line + 1
+    result.key_lines = {}
+    for key_node, value_node in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        result[str(key)] = loader.construct_object(value_node, deep=True)
+        result.key_lines[str(key)] = key_node.start_mark.line + 1
+    return result
+
+
+_LineLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+
+
+def load_yaml(path: Path) -> LinedDict:
+    """Read a YAML file whose top level is a mapping; errors name the file and line."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such config file; check the path (see config/ for examples)") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read config file: {exc}") from exc
+    try:
+        data = yaml.load(text, Loader=_LineLoader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise ConfigError(f"{where}: not valid YAML ({problem}); fix the syntax there") from exc
+    if data is None:
+        data = LinedDict()
+        data.line, data.key_lines = 1, {}
+    if not isinstance(data, LinedDict):
+        raise ConfigError(
+            f"{path}:1: expected a mapping of sections at the top level, got {type(data).__name__}"
+        )
+    return data
+
+
+@dataclass(frozen=True)
+class Where:
+    """Where a value came from, for error messages."""
+
+    path: Path
+    line: int
+    key: str  # dotted, e.g. "plant.J"
+
+    def error(self, problem: str) -> ConfigError:
+        return ConfigError(f"{self.path}:{self.line}: {self.key}: {problem}")
+
+
+def build(cls: type, data: Any, where: Where) -> Any:
+    """Build dataclass `cls` from a YAML mapping, checking every key against its rule."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise where.error(f"expected a section (a mapping of keys), got {data!r}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    lines = getattr(data, "key_lines", {})
+    for key in data:
+        if key not in fields:
+            close = difflib.get_close_matches(key, fields, n=1)
+            hint = f"did you mean '{close[0]}'?" if close else f"known keys: {', '.join(fields)}"
+            line = lines.get(key, where.line)
+            raise Where(where.path, line, _join(where.key, key)).error(f"unknown key; {hint}")
+    values: dict[str, Any] = {}
+    for name, f in fields.items():
+        sub = Where(where.path, lines.get(name, where.line), _join(where.key, name))
+        if name not in data:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise where.error(f"missing required key '{name}' ({f.metadata.get('doc', '')})")
+            continue
+        values[name] = convert(hints[name], data[name], sub, f.metadata)
+    return cls(**values)
+
+
+def _join(prefix: str, key: str) -> str:
+    return f"{prefix}.{key}" if prefix else key
+
+
+def convert(tp: Any, value: Any, where: Where, meta: typing.Mapping[str, Any]) -> Any:
+    """Convert one YAML value to type `tp` and check it against the field's rule."""
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        (inner,) = [a for a in args if a is not type(None)]
+        return convert(inner, value, where, meta)
+    if dataclasses.is_dataclass(tp):
+        return build(tp, value, where)  # type: ignore[arg-type]
+    if origin is tuple:
+        if not isinstance(value, list):
+            raise where.error(f"expected a list, got {value!r}")
+        item_type = args[0]
+        return tuple(
+            convert(item_type, v, Where(where.path, where.line, f"{where.key}[{i}]"), meta)
+            for i, v in enumerate(value)
+        )
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise where.error(f"expected true or false, got {value!r}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise where.error(f"expected text, got {value!r}")
+        choices = meta.get("choices")
+        if choices and value not in choices:
+            raise where.error(f"expected one of {', '.join(choices)}, got {value!r}")
+        return value
+    if tp in (int, float):
+        return _number(tp, value, where, meta)
+    raise TypeError(f"schema type {tp!r} not supported")  # a bug in a schema, not a user error
+
+
+def _number(tp: type, value: Any, where: Where, meta: typing.Mapping[str, Any]) -> float | int:
+    unit = f" {meta['unit']}" if meta.get("unit") else ""
+    kind = "a whole number" if tp is int else "a number"
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise where.error(f"expected {kind}{unit}, got {value!r}")
+    if tp is int and isinstance(value, float) and not value.is_integer():
+        raise where.error(f"expected {kind}{unit}, got {value!r}")
+    number = tp(value)
+    if not math.isfinite(number):
+        raise where.error(f"expected a finite number{unit}, got {value!r}")
+    for bound, ok, text in (
+        ("gt", lambda b: number > b, "above"),
+        ("ge", lambda b: number >= b, "at least"),
+        ("lt", lambda b: number < b, "below"),
+        ("le", lambda b: number <= b, "at most"),
+    ):
+        limit = meta.get(bound)
+        if limit is not None and not ok(limit):
+            raise where.error(f"must be {text} {limit:g}{unit}, got {value!r}")
+    return number
