@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 # The main job. Until the daemon lands, a spin-up of the simulated scanning aperture to
 # 25 rev/s with the once-per-revolution imbalance on: a table, and a plot in run-spin.png.
 run: $(STAMP)
-	$(BIN)/tvsctl sim spin --rps 25 --seconds 6 --effect imbalance:amplitude=6e-5,phase=0.5 \
+	$(BIN)/tvsctl sim spin --rps 25 --seconds 10 --effect imbalance:amplitude=1e-4,phase=0.5 \
 		--plot run-spin.png
 
 system-deps:

@@ -61,9 +61,9 @@ def test_spin_puts_the_imbalance_line_at_the_rotation_rate(capsys):
         "--rps",
         "20",
         "--seconds",
-        "6",
+        "8",
         "--effect",
-        "imbalance:amplitude=6e-5,phase=0.5",
+        "imbalance:amplitude=2e-4,phase=0.5",  # a 3.1 rad/s² line: 10x the SDE floor per bin
     )
     assert {"rps_mean", "rps_std", "omega_std_rad_s", "dominant_hz"} <= res.keys()
     assert res["rps_mean"] == pytest.approx(20.0, abs=0.01)

@@ -20,7 +20,7 @@ def test_shipped_configs_load():
     default = load_config()
     paper = load_config(params="paper")
     assert default.plant.name == "default" and paper.plant.name == "paper"
-    assert default.sil is not None and default.sil.vibration.model == "ou"
+    assert default.sil is not None and default.sil.vibration.model == "sde"
     assert paper.sil is not None and paper.sil.vibration.model == "sde"
     assert paper.reproduction is not None and len(paper.reproduction.table6_refs_deg) == 7
 
