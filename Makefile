@@ -35,7 +35,7 @@ lint: $(STAMP)
 pytest: $(STAMP)
 	$(BIN)/python -m pytest -q
 
-firmware-test: system-deps
+firmware-test: system-deps $(STAMP)
 	@if [ -f firmware/Makefile ]; then $(MAKE) -C firmware all test; fi
 
 bench: $(STAMP)

@@ -1,0 +1,50 @@
+/* ATmega328P main loop: bytes in, control ticks, events out; kicks the hardware watchdog.
+ * If this loop ever stalls for 30 ms the AVR watchdog resets the chip, and a reset leaves
+ * every output off (pins low) until the host arms the core again with a heartbeat. */
+#include <avr/interrupt.h>
+#include <avr/io.h>
+#include <avr/sleep.h>
+#include <avr/wdt.h>
+
+#include "board_avr.h"
+#include "core.h"
+
+int main(void)
+{
+    MCUSR = 0;
+    wdt_disable();
+    board_init();
+    core_init();
+    wdt_enable(WDTO_30MS);
+    set_sleep_mode(SLEEP_MODE_IDLE); /* timers and UART keep running */
+    sei();
+    for (;;) {
+        wdt_reset();
+        /* Bounded work per pass: at most 16 received bytes, then one control tick. Under an
+         * input flood the RX ring overflows (counted as CRC errors) but the ticks, and with
+         * them the heartbeat watchdog, keep running; unbounded draining would starve them. */
+        uint8_t b;
+        for (uint8_t i = 0; i < 16u && board_rx_pop(&b); i++)
+            core_rx_byte(b);
+        if (board_tick_pending) {
+            cli();
+            board_tick_pending--;
+            sei();
+            uint32_t t;
+            int32_t enc;
+            board_tick_sample(&t, &enc);
+            core_tick(t, enc);
+        }
+        core_poll();
+        /* Idle until the next interrupt (the 10 kHz tick at the latest). Interrupts are off
+         * while we look for work; SEI takes effect after SLEEP, so no wake-up is missed. */
+        cli();
+        if (!board_tick_pending && !board_rx_pending()) {
+            sleep_enable();
+            sei();
+            sleep_cpu();
+            sleep_disable();
+        }
+        sei();
+    }
+}

@@ -1,0 +1,35 @@
+/* Virtual MCU: the portable core on the host, behind a C API for ctypes
+ * (tvsd/sim/virtual_mcu.py). Simulated time runs only when vmcu_advance_to() is called; it
+ * counts the same 16 MHz ticks as the ATmega328P's Timer1, so frames are bit-identical.
+ * Not thread-safe: the caller serialises calls. One instance per process (the core is
+ * a singleton, as on the chip). */
+#ifndef VMCU_H
+#define VMCU_H
+#include <stddef.h>
+#include <stdint.h>
+
+#define VMCU_API __attribute__((visibility("default")))
+
+VMCU_API void vmcu_init(void);                      /* power-on: time 0, outputs off */
+VMCU_API uint32_t vmcu_clock_hz(void);              /* tick rate of the timestamps */
+VMCU_API uint64_t vmcu_now(void);                   /* ticks since vmcu_init */
+/* Run the core up to tick t: 10 kHz control ticks and step pulses, in time order. */
+VMCU_API void vmcu_advance_to(uint64_t t);
+/* Host -> MCU bytes (the UART receive side), handled at the current time. */
+VMCU_API void vmcu_rx_bytes(const uint8_t *buf, size_t n);
+/* MCU -> host bytes: copies up to max pending bytes, returns how many. */
+VMCU_API size_t vmcu_tx_bytes(uint8_t *buf, size_t max);
+/* Plant inputs. */
+VMCU_API void vmcu_set_encoder(int32_t count);
+/* A sensor edge latched at tick t (t >= now: time advances to t first; t < now: the edge
+ * was latched earlier, as the capture register does, and is reported now). */
+VMCU_API void vmcu_pulse(uint8_t channel, uint64_t t);
+/* Home switch of an axis: closed while the mechanism is at or below pos (enabled != 0). */
+VMCU_API void vmcu_set_limit(uint8_t axis, int enabled, int32_t pos);
+/* Outputs, read back by the plant. */
+VMCU_API int16_t vmcu_pwm(void);                    /* -32767..32767 */
+VMCU_API int vmcu_laser(void);
+VMCU_API int32_t vmcu_stepper_position(uint8_t axis); /* the mechanism's position, in steps */
+VMCU_API uint32_t vmcu_step_count(uint8_t axis);      /* pulses emitted */
+
+#endif

@@ -1,0 +1,248 @@
+"""The virtual MCU (firmware core on the host) through a real pty and pyserial.
+
+Frames are built here from firmware/protocol.yaml with a few lines of struct, on purpose: the
+host codec (tvsd/hw/mcu) is tested elsewhere, and this test must catch a firmware that drifts
+from the spec even if both sides drifted together.
+"""
+
+from __future__ import annotations
+
+import binascii
+import math
+import re
+import struct
+import time
+import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from itertools import pairwise
+from pathlib import Path
+
+import pytest
+import serial
+import yaml
+
+from tvsd.sim.virtual_mcu import PULSE_OPTICAL, PULSE_ZERO, VirtualMcu
+
+SPEC_PATH = Path(__file__).resolve().parents[1] / "firmware" / "protocol.yaml"
+CLOCK_HZ = 16_000_000
+TICK_S = 1e-4  # the core's control tick: watchdog and state frames are checked once per tick
+FMT = {"u8": "B", "i8": "b", "u16": "H", "i16": "h", "u32": "I", "i32": "i"}
+
+
+class _Yaml12(yaml.SafeLoader):
+    """YAML 1.2 booleans: `on` (laser_set's field) stays a string."""
+
+
+_Yaml12.yaml_implicit_resolvers = {
+    k: [(tag, rx) for tag, rx in v if tag != "tag:yaml.org,2002:bool"]
+    for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+_Yaml12.add_implicit_resolver(
+    "tag:yaml.org,2002:bool", re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF")
+)
+SPEC = yaml.load(SPEC_PATH.read_text(), Loader=_Yaml12)
+MSG = {m["name"]: m for m in SPEC["messages"]}
+BY_ID = {m["id"]: m for m in SPEC["messages"]}
+FAULTS = {name: code for code, name in SPEC["fault_codes"].items()}
+
+
+def _struct(name: str) -> struct.Struct:
+    return struct.Struct("<" + "".join(FMT[t] for _, t in MSG[name]["fields"]))
+
+
+def encode(name: str, seq: int = 0, **fields: int) -> bytes:
+    m = MSG[name]
+    payload = _struct(name).pack(*(fields[f] for f, _ in m["fields"]))
+    body = bytes([len(payload), seq, m["id"]]) + payload
+    # CRC-16/CCITT-FALSE: binascii's CRC-CCITT with init 0xFFFF
+    return bytes([SPEC["sync"]]) + body + struct.pack("<H", binascii.crc_hqx(body, 0xFFFF))
+
+
+@dataclass
+class Frame:
+    seq: int
+    name: str
+    fields: dict[str, int]
+
+
+class Reader:
+    """Frames from the pty; the CRC of each is checked."""
+
+    def __init__(self, port: serial.Serial) -> None:
+        self.port = port
+        self.buf = bytearray()
+
+    def frames(self, timeout: float) -> Iterator[Frame]:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            self.buf += self.port.read(max(1, self.port.in_waiting))
+            while len(self.buf) >= 6:
+                if self.buf[0] != SPEC["sync"]:
+                    del self.buf[0]
+                    continue
+                n = self.buf[1] + 6
+                if len(self.buf) < n:
+                    break
+                raw = bytes(self.buf[:n])
+                del self.buf[:n]
+                crc = binascii.crc_hqx(raw[1:-2], 0xFFFF)
+                assert crc == struct.unpack("<H", raw[-2:])[0], f"bad CRC in {raw.hex()}"
+                m = BY_ID[raw[3]]
+                values = _struct(m["name"]).unpack(raw[4:-2])
+                yield Frame(raw[2], m["name"], dict(zip([f for f, _ in m["fields"]], values, strict=True)))
+
+    def wait(self, name: str, timeout: float = 2.0) -> Frame:
+        for f in self.frames(timeout):
+            if f.name == name:
+                return f
+        raise AssertionError(f"no {name} frame within {timeout} s")
+
+    def collect(self, name: str, timeout: float) -> list[Frame]:
+        return [f for f in self.frames(timeout) if f.name == name]
+
+
+def _ticks16_steps(states: list[Frame]) -> set[int]:
+    return {(b.fields["ticks16"] - a.fields["ticks16"]) % 2**16 for a, b in pairwise(states)}
+
+
+@pytest.fixture
+def manual() -> Iterator[tuple[VirtualMcu, serial.Serial, Reader]]:
+    with VirtualMcu(clock="manual", counts_per_rev=4096, drive_volts=24.0) as vm:
+        port = serial.Serial(vm.port, timeout=0.05)
+        try:
+            yield vm, port, Reader(port)
+        finally:
+            port.close()
+
+
+def _arm(port: serial.Serial, rd: Reader, watchdog_ms: int, state_div: int) -> None:
+    port.write(encode("config_set", 1, watchdog_ms=watchdog_ms, state_div=state_div, max_on_ms=0))
+    assert rd.wait("ack").fields == {"seq": 1, "status": 0}
+    port.write(encode("heartbeat", 2, host_us=7))
+    assert rd.wait("heartbeat_ack").fields["host_us"] == 7  # handled: the watchdog runs
+
+
+def test_identify_matches_spec() -> None:
+    canonical = "".join(
+        f"{m['id']}:{m['name']}:" + ",".join(f"{f}:{t}" for f, t in m["fields"]) + "\n"
+        for m in sorted(SPEC["messages"], key=lambda m: m["id"])
+    )
+    # manual clock: no time passes, so no state frame can come first and take SEQ 0
+    with VirtualMcu(clock="manual") as vm, serial.Serial(vm.port, timeout=0.05) as port:
+        port.write(encode("identify_req", 5))
+        f = Reader(port).wait("identify")
+    assert f.fields == {
+        "proto_version": SPEC["version"],
+        "clock_hz": CLOCK_HZ,
+        "table_hash": zlib.crc32(canonical.encode()),
+        "board": 2,  # host, per protocol.yaml boards:
+    }
+    assert f.seq == 0  # the first frame the MCU sent
+
+
+def test_pwm_set_reaches_plant(manual: tuple[VirtualMcu, serial.Serial, Reader]) -> None:
+    vm, port, rd = manual
+    port.write(encode("pwm_set", 0, duty=16384))
+    assert rd.wait("ack").fields == {"seq": 0, "status": 2}  # refused: no heartbeat yet
+    assert vm.pwm_duty == 0.0
+    _arm(port, rd, watchdog_ms=500, state_div=0)
+    port.write(encode("pwm_set", 3, duty=-16384))
+    port.write(encode("laser_set", 4, on=1))
+    assert rd.wait("ack").fields == {"seq": 4, "status": 0}  # frames are handled in order
+    assert vm.pwm_duty == pytest.approx(-16384 / 32767, abs=1e-12)
+    assert vm.motor_volts == pytest.approx(-24.0 * 16384 / 32767, abs=1e-9)
+    assert vm.laser_on
+
+
+def test_watchdog_cuts_outputs(manual: tuple[VirtualMcu, serial.Serial, Reader]) -> None:
+    vm, port, rd = manual
+    _arm(port, rd, watchdog_ms=50, state_div=0)
+    t_hb = vm.time_s  # the heartbeat was handled at this simulated time
+    port.write(encode("pwm_set", 3, duty=30000))
+    port.write(encode("laser_set", 4, on=1))
+    rd.wait("ack")
+    vm.advance_to(t_hb + 0.050 - TICK_S)
+    assert vm.pwm_duty > 0 and vm.laser_on, "cut before the watchdog time"
+    # The deadline is checked every control tick: off at most one tick after 50 ms.
+    vm.advance_to(t_hb + 0.050 + TICK_S)
+    assert vm.pwm_duty == 0.0 and not vm.laser_on
+    fault = rd.wait("fault")
+    assert fault.fields == {"code": FAULTS["watchdog_expired"], "detail": 50}
+
+
+def test_encoder_follows_shaft(manual: tuple[VirtualMcu, serial.Serial, Reader]) -> None:
+    vm, port, rd = manual
+    _arm(port, rd, watchdog_ms=1000, state_div=1)
+    t = vm.time_s
+    angles = [0.3, -1.0, 7.5, 100.0]  # 100 rad = 65190 counts: encoder16 wraps
+    for i, a in enumerate(angles):
+        vm.set_shaft(a, t + (i + 1) * 0.001)  # the count holds from this time on
+    vm.advance_to(t + (len(angles) + 1) * 0.001)
+    states = rd.collect("state", timeout=0.3)
+    # state frames sample the encoder each 0.1 ms tick: each 1 ms step shows
+    # round(angle / 2 pi * 4096), as i16 on the wire
+    want = [((round(a / math.tau * 4096) + 2**15) % 2**16) - 2**15 for a in angles]
+    seen = [s.fields["encoder16"] for s in states]
+    for w in want:
+        assert w in seen, f"encoder16 {w} never reported; saw {sorted(set(seen))}"
+    assert _ticks16_steps(states) == {CLOCK_HZ // 10_000}, "one state frame per tick, none lost"
+
+
+def test_pulse_events_sequence(manual: tuple[VirtualMcu, serial.Serial, Reader]) -> None:
+    vm, _, rd = manual
+    vm.set_shaft(0.0, 0.010)
+    vm.pulse(PULSE_OPTICAL, 0.0105)
+    vm.set_shaft(2 * math.tau + 1.0, 0.030)  # crosses 2 pi and 4 pi: two zero pulses
+    vm.pulse(PULSE_OPTICAL, 0.031)
+    pulses = rd.collect("pulse", timeout=0.3)
+    got = [(p.fields["channel"], p.fields["event_seq"], p.fields["mcu_ticks"]) for p in pulses]
+    rate = (2 * math.tau + 1.0) / 0.020  # rad/s between the two set_shaft calls
+    t_zero = [0.010 + k * math.tau / rate for k in (1, 2)]
+    expect = [
+        (PULSE_OPTICAL, 0, round(0.0105 * CLOCK_HZ)),
+        (PULSE_ZERO, 1, round(t_zero[0] * CLOCK_HZ)),
+        (PULSE_ZERO, 2, round(t_zero[1] * CLOCK_HZ)),
+        (PULSE_OPTICAL, 3, round(0.031 * CLOCK_HZ)),
+    ]
+    assert got == expect
+
+
+def test_wall_clock_runs_core() -> None:
+    """With the wall clock, the core's time follows the monotonic clock (state frames come
+    at their rate, none lost); 30 % slack covers a busy CI machine's thread wake-ups."""
+    with VirtualMcu() as vm, serial.Serial(vm.port, timeout=0.05) as port:
+        rd = Reader(port)
+        port.write(encode("config_set", 1, watchdog_ms=1000, state_div=10, max_on_ms=0))
+        rd.wait("ack")
+        t0 = time.monotonic()
+        states = rd.collect("state", timeout=0.5)
+        elapsed = time.monotonic() - t0
+    assert len(states) == pytest.approx(elapsed * 1000, rel=0.3)
+    assert _ticks16_steps(states) == {10 * CLOCK_HZ // 10_000}
+
+
+def test_steppers_move_and_home(manual: tuple[VirtualMcu, serial.Serial, Reader]) -> None:
+    vm, port, rd = manual
+    _arm(port, rd, watchdog_ms=5000, state_div=0)
+    t = vm.time_s
+    port.write(encode("stepper_move", 3, axis=0, steps=-200, rate_sps=1000, accel_sps2=5000))
+    assert rd.wait("ack").fields == {"seq": 3, "status": 0}
+    vm.set_limit(1, -50)  # axis 1's home switch closes 50 steps below where it starts
+    port.write(encode("stepper_home", 4, axis=1))
+    assert rd.wait("ack").fields == {"seq": 4, "status": 0}
+    # 200 steps: 100-step ramps each way at 5000 sps^2 peak at sqrt(a n) = 707 sps, 0.28 s in
+    # all; homing: 50 steps at 500 sps = 0.1 s. 1 s covers both with room.
+    final: dict[int, dict[str, int]] = {}  # last stepper_state per axis
+    for k in range(1, 11):
+        vm.advance_to(t + 0.1 * k)
+        port.write(encode("heartbeat", 5 + k, host_us=k))
+        for f in rd.frames(2.0):
+            if f.name == "stepper_state":
+                final[f.fields["axis"]] = f.fields
+            if f.name == "heartbeat_ack":
+                break
+    assert vm.stepper_position(0) == -200 and vm.step_count(0) == 200
+    assert vm.stepper_position(1) == -50  # the mechanism stopped on the switch
+    assert final[0] == {"axis": 0, "position": -200, "flags": 0}
+    assert final[1] == {"axis": 1, "position": 0, "flags": 2 | 4}  # homed, at limit

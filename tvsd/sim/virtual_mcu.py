@@ -1,0 +1,300 @@
+"""Virtual MCU: the real firmware core, built for the host, behind a real pseudo-terminal.
+
+The same C core that runs on the ATmega328P (``firmware/core``) is compiled with a host board
+layer into ``firmware/build/libtvsmcu_host.so`` and loaded here with ctypes. A thread pumps
+bytes between a pty and the core, so anything that opens :attr:`VirtualMcu.port` with pyserial
+talks to the firmware's own parser, command table, watchdog and stepper planner, byte for byte.
+
+Time: the core counts 16 MHz ticks (62.5 ns, the ATmega328P's Timer1 at F_CPU/1), the unit of
+every ``mcu_ticks`` on the wire. With ``clock="wall"`` the pump thread advances the core to the
+monotonic clock (about every millisecond); with ``clock="manual"`` only :meth:`advance_to`,
+:meth:`set_shaft` and :meth:`pulse` move it, so a SIL plant can step it deterministically.
+
+Plant side: :meth:`set_shaft` turns a shaft angle into the encoder count (``counts_per_rev``
+quadrature counts per revolution) and a zero pulse at each whole revolution crossed (time
+interpolated between calls); :meth:`pulse` latches a sensor edge; :attr:`pwm_duty`,
+:attr:`motor_volts`, :attr:`laser_on` and :meth:`stepper_position` read the outputs back.
+
+Not modelled: the UART's 2 Mbaud line rate (the pty is faster; the core's TX ring still drops
+and counts frames when the reader falls behind by more than the pty buffer).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import math
+import os
+import select
+import shutil
+import subprocess
+import tempfile
+import threading
+import time
+import tty
+from pathlib import Path
+from types import TracebackType
+from typing import Literal
+
+from tvsd.errors import DeviceError
+
+FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
+LIBRARY = FIRMWARE_DIR / "build" / "libtvsmcu_host.so"
+
+PULSE_ZERO = 0
+PULSE_OPTICAL = 1
+STEPPER_AXES = 2
+_DUTY_FULL = 32767
+_PUMP_PERIOD_S = 0.001
+_PTY_BACKLOG = 65536  # bytes held for a slow reader before the core's TX ring takes the loss
+
+
+class VirtualMcuError(DeviceError):
+    """The virtual MCU cannot be built, loaded or used as asked."""
+
+
+def build_library(path: Path = LIBRARY) -> Path:
+    """Build the host library with ``make -C firmware host-lib`` if it is missing."""
+    if path.exists():
+        return path
+    missing = [tool for tool in ("make", "gcc") if shutil.which(tool) is None]
+    if missing:
+        raise VirtualMcuError(
+            f"{path} is missing and cannot be built: {', '.join(missing)} not found. "
+            "Fix: install the build tools (apt-get install build-essential), or run "
+            "`make -C firmware host-lib` on a machine that has them and copy the library."
+        )
+    proc = subprocess.run(
+        ["make", "-C", str(FIRMWARE_DIR), "host-lib"], capture_output=True, text=True, check=False
+    )
+    if proc.returncode != 0 or not path.exists():
+        raise VirtualMcuError(
+            f"building {path} failed (make -C {FIRMWARE_DIR} host-lib, status "
+            f"{proc.returncode}):\n{proc.stderr.strip()[-2000:]}"
+        )
+    return path
+
+
+def _load(path: Path) -> tuple[ctypes.CDLL, Path]:
+    """Load a private copy of the library: the core is a singleton per loaded image, and a
+    copy under another name gets its own, so several virtual MCUs can live in one process."""
+    tmpdir = Path(tempfile.mkdtemp(prefix="tvsmcu-"))
+    copy = tmpdir / path.name
+    shutil.copyfile(path, copy)
+    try:
+        lib = ctypes.CDLL(str(copy))
+    except OSError as exc:
+        shutil.rmtree(tmpdir, ignore_errors=True)
+        raise VirtualMcuError(f"cannot load {path}: {exc}. Fix: make -C firmware clean host-lib") from exc
+    u8, u64, i32 = ctypes.c_uint8, ctypes.c_uint64, ctypes.c_int32
+    buf = ctypes.POINTER(ctypes.c_uint8)
+    for name, res, args in (
+        ("vmcu_init", None, []),
+        ("vmcu_clock_hz", ctypes.c_uint32, []),
+        ("vmcu_now", u64, []),
+        ("vmcu_advance_to", None, [u64]),
+        ("vmcu_rx_bytes", None, [buf, ctypes.c_size_t]),
+        ("vmcu_tx_bytes", ctypes.c_size_t, [buf, ctypes.c_size_t]),
+        ("vmcu_set_encoder", None, [i32]),
+        ("vmcu_pulse", None, [u8, u64]),
+        ("vmcu_set_limit", None, [u8, ctypes.c_int, i32]),
+        ("vmcu_pwm", ctypes.c_int16, []),
+        ("vmcu_laser", ctypes.c_int, []),
+        ("vmcu_stepper_position", i32, [u8]),
+        ("vmcu_step_count", ctypes.c_uint32, [u8]),
+    ):
+        fn = getattr(lib, name)
+        fn.restype = res
+        fn.argtypes = args
+    return lib, tmpdir
+
+
+class VirtualMcu:
+    """The firmware core on a pty. Use as a context manager, or call :meth:`close`."""
+
+    def __init__(
+        self,
+        *,
+        counts_per_rev: int = 4096,
+        drive_volts: float = 12.0,
+        clock: Literal["wall", "manual"] = "wall",
+        library: Path | None = None,
+    ) -> None:
+        if counts_per_rev <= 0:
+            raise VirtualMcuError(f"counts_per_rev must be positive, got {counts_per_rev}")
+        if clock not in ("wall", "manual"):
+            raise VirtualMcuError(f"clock must be 'wall' or 'manual', got {clock!r}")
+        self.counts_per_rev = counts_per_rev
+        self.drive_volts = drive_volts
+        self.clock = clock
+        self._lib, self._tmpdir = _load(build_library(library or LIBRARY))
+        self._lib.vmcu_init()
+        self.clock_hz: int = self._lib.vmcu_clock_hz()
+        self._lock = threading.Lock()
+        self._t0 = time.monotonic()
+        self._shaft: tuple[float, float] | None = None  # last (t_s, angle_rad)
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)  # bytes pass untouched: no echo, no line discipline
+        os.set_blocking(self._master, False)
+        self.port: str = os.ttyname(self._slave)
+        self._backlog = bytearray()
+        self._stop = threading.Event()
+        self._closed = False
+        self._thread = threading.Thread(target=self._pump, name="virtual-mcu", daemon=True)
+        self._thread.start()
+
+    # ---- time ---------------------------------------------------------------------------
+    def _ticks(self, t_s: float) -> int:
+        return max(0, round(t_s * self.clock_hz))
+
+    @property
+    def time_s(self) -> float:
+        """The core's simulated time, seconds since power-on."""
+        with self._lock:
+            return int(self._lib.vmcu_now()) / self.clock_hz
+
+    def _wall_s(self) -> float:
+        return time.monotonic() - self._t0
+
+    def _now_or(self, t_s: float | None) -> float:
+        if t_s is not None:
+            return t_s
+        return self._wall_s() if self.clock == "wall" else self.time_s
+
+    def advance_to(self, t_s: float) -> None:
+        """Run the core up to t_s (manual clock only; the wall clock runs by itself)."""
+        if self.clock != "manual":
+            raise VirtualMcuError("advance_to() drives the manual clock; this one is 'wall'")
+        with self._lock:
+            self._lib.vmcu_advance_to(self._ticks(t_s))
+
+    # ---- plant inputs -------------------------------------------------------------------
+    def set_shaft(self, angle_rad: float, t_s: float | None = None) -> None:
+        """Shaft at angle_rad (unwrapped) at t_s: the encoder reads the new count from t_s on
+        (sample and hold between calls), and a zero pulse is latched for every multiple of
+        2*pi crossed since the last call, at the time interpolated linearly between them."""
+        t = self._now_or(t_s)
+        prev = self._shaft
+        self._shaft = (t, angle_rad)
+        with self._lock:
+            if prev is not None:
+                t_prev, a_prev = prev
+                lo, hi = sorted((a_prev, angle_rad))
+                first, last = math.floor(lo / math.tau) + 1, math.floor(hi / math.tau)
+                for k in range(first, last + 1):
+                    frac = (k * math.tau - a_prev) / (angle_rad - a_prev)
+                    t_k = t_prev + frac * (t - t_prev)
+                    self._lib.vmcu_pulse(PULSE_ZERO, self._ticks(t_k))
+            if self.clock == "manual":
+                self._lib.vmcu_advance_to(self._ticks(t))
+            count = round(angle_rad / math.tau * self.counts_per_rev)
+            self._lib.vmcu_set_encoder(((count + 2**31) % 2**32) - 2**31)  # wraps like the chip
+
+    def pulse(self, channel: int = PULSE_OPTICAL, t_s: float | None = None) -> None:
+        """A sensor edge latched at t_s (default: now), timestamped in 62.5 ns ticks."""
+        if channel not in (PULSE_ZERO, PULSE_OPTICAL):
+            raise VirtualMcuError(f"pulse channel must be 0 (zero) or 1 (optical), got {channel}")
+        t = self._now_or(t_s)
+        with self._lock:
+            self._lib.vmcu_pulse(channel, self._ticks(t))
+
+    def set_limit(self, axis: int, position: int | None) -> None:
+        """Home switch of a stepper axis: closed at and below `position` steps (None: absent)."""
+        self._check_axis(axis)
+        with self._lock:
+            self._lib.vmcu_set_limit(axis, position is not None, position or 0)
+
+    # ---- outputs ------------------------------------------------------------------------
+    @property
+    def pwm_duty(self) -> float:
+        """Motor PWM duty, -1..1 (sign = H-bridge direction)."""
+        with self._lock:
+            return int(self._lib.vmcu_pwm()) / _DUTY_FULL
+
+    @property
+    def motor_volts(self) -> float:
+        """Voltage the H-bridge applies to the motor: duty times drive_volts."""
+        return self.pwm_duty * self.drive_volts
+
+    @property
+    def laser_on(self) -> bool:
+        with self._lock:
+            return bool(self._lib.vmcu_laser())
+
+    def stepper_position(self, axis: int) -> int:
+        """Where the mechanism is, in steps, counted from the pulses the firmware emitted."""
+        self._check_axis(axis)
+        with self._lock:
+            return int(self._lib.vmcu_stepper_position(axis))
+
+    def step_count(self, axis: int) -> int:
+        self._check_axis(axis)
+        with self._lock:
+            return int(self._lib.vmcu_step_count(axis))
+
+    @staticmethod
+    def _check_axis(axis: int) -> None:
+        if not 0 <= axis < STEPPER_AXES:
+            raise VirtualMcuError(f"stepper axis must be 0..{STEPPER_AXES - 1}, got {axis}")
+
+    # ---- byte pump ----------------------------------------------------------------------
+    def _pump(self) -> None:
+        buf = (ctypes.c_uint8 * 4096)()
+        while not self._stop.is_set():
+            readable, _, _ = select.select([self._master], [], [], _PUMP_PERIOD_S)
+            data = b""
+            if readable:
+                try:
+                    data = os.read(self._master, 4096)
+                except (BlockingIOError, InterruptedError):
+                    data = b""
+                except OSError:  # pty gone (closing)
+                    return
+            with self._lock:
+                # Time first: received bytes are handled at the time they arrived, so a
+                # heartbeat_ack's mcu_ticks matches the host's clock to the pump's latency.
+                if self.clock == "wall":
+                    self._lib.vmcu_advance_to(self._ticks(self._wall_s()))
+                if data:
+                    raw = (ctypes.c_uint8 * len(data)).from_buffer_copy(data)
+                    self._lib.vmcu_rx_bytes(raw, len(data))
+                # Leave bytes in the core's TX ring when the reader is this far behind: the
+                # ring then overflows and the firmware counts the loss, as on the real line.
+                while len(self._backlog) < _PTY_BACKLOG:
+                    n = self._lib.vmcu_tx_bytes(buf, len(buf))
+                    if not n:
+                        break
+                    self._backlog += bytes(buf[:n])
+            if self._backlog:
+                try:
+                    written = os.write(self._master, self._backlog)
+                    del self._backlog[:written]
+                except (BlockingIOError, InterruptedError):
+                    pass
+                except OSError:
+                    return
+
+    # ---- lifetime -----------------------------------------------------------------------
+    def close(self) -> None:
+        """Stop the pump thread and close the pty (idempotent). The library copy stays mapped
+        until the process ends: ctypes has no unload."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        for fd in (self._master, self._slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        shutil.rmtree(self._tmpdir, ignore_errors=True)
+
+    def __enter__(self) -> VirtualMcu:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
