@@ -1,0 +1,446 @@
+"""McuLink through a real pseudo-terminal, with the MCU played in Python on the master side."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import threading
+import time
+import tty
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from dataclasses import dataclass, field
+
+import pytest
+
+from tvsd.errors import ConfigError, DeviceError, ProtocolError, UsageError
+from tvsd.hw.mcu.framing import Frame, FrameDecoder, encode_frame
+from tvsd.hw.mcu.link import LinkSettings, McuLink, PulseEvent, StateSample
+from tvsd.hw.mcu.spec import load_spec
+
+SPEC = load_spec()
+ID = {m.name: m for m in SPEC.messages}
+HZ = 16_000_000
+
+
+@dataclass
+class FakeMcu:
+    """The MCU's side of the wire, on the pty master: answers identify, heartbeat and stats."""
+
+    master: int
+    version: int = SPEC.version
+    table_hash: int = SPEC.table_hash
+    answer: bool = True
+    tick0: int = 0xFFFF_0000  # near the 32-bit wrap, so the host must unwrap
+    seq: int = 0
+    received: list[Frame] = field(default_factory=list)
+    decoder: FrameDecoder = field(
+        default_factory=lambda: FrameDecoder(payload_sizes=SPEC.payload_sizes("h2m"))
+    )
+    t0: float = field(default_factory=time.monotonic)
+
+    frozen: int | None = None  # a fixed tick count, for exact expectations
+
+    def ticks(self) -> int:
+        if self.frozen is not None:
+            return self.frozen
+        return self.tick0 + int((time.monotonic() - self.t0) * HZ)
+
+    def send(self, name: str, *values: int) -> bytes:
+        m = ID[name]
+        frame = encode_frame(self.seq, m.id, m.codec.pack(*values))
+        self.seq = (self.seq + 1) & 0xFF
+        os.write(self.master, frame)
+        return frame
+
+    def on_readable(self) -> None:
+        try:
+            data = os.read(self.master, 65536)
+        except OSError:
+            return
+        for f in self.decoder.feed(data):
+            self.received.append(f)
+            if not self.answer:
+                continue
+            name = SPEC.by_id(f.msg_id).name  # type: ignore[union-attr]
+            if name == "identify_req":
+                self.send("identify", self.version, HZ, self.table_hash, 2)
+            elif name == "heartbeat":
+                (host_us,) = ID["heartbeat"].codec.unpack(f.payload)
+                self.send("heartbeat_ack", host_us, self.ticks() & 0xFFFF_FFFF)
+            elif name == "stats_req":
+                self.send("stats", self.decoder.stats.frames, 0, 0, 0)
+
+    def pwm(self) -> list[int]:
+        return [
+            ID["pwm_set"].codec.unpack(f.payload)[0] for f in self.received if f.msg_id == ID["pwm_set"].id
+        ]
+
+
+@asynccontextmanager
+async def pty_link(fake_kw: dict | None = None, **link_kw: object) -> AsyncIterator[tuple[McuLink, FakeMcu]]:
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    path = os.ttyname(slave)
+    loop = asyncio.get_running_loop()
+    fake = FakeMcu(master, **(fake_kw or {}))
+    loop.add_reader(master, fake.on_readable)
+    cbs = {k: link_kw.pop(k) for k in list(link_kw) if k.startswith("on_")}
+    link = McuLink(LinkSettings(port=path, **link_kw), SPEC, **cbs)  # type: ignore[arg-type]
+    try:
+        await link.open()
+        yield link, fake
+    finally:
+        await link.close()
+        loop.remove_reader(master)
+        os.close(slave)
+        os.close(master)
+
+
+def run(coro_fn: Callable[[], object]) -> None:
+    asyncio.run(coro_fn())  # type: ignore[arg-type]
+
+
+def test_identify_ok_and_ping() -> None:
+    async def main() -> None:
+        async with pty_link() as (link, _):
+            ident = await link.identify()
+            assert (ident.proto_version, ident.table_hash, ident.clock_hz) == (
+                SPEC.version,
+                SPEC.table_hash,
+                HZ,
+            )
+            rtts = [await link.ping() for _ in range(50)]
+            st = link.stats()
+            rtts.sort()
+            print(f"pty RTT: p50 {rtts[25] * 1e6:.0f} µs, max {rtts[-1] * 1e6:.0f} µs")
+            # both ends on one event loop: a round trip is two pty hops and two loop turns
+            assert 0 < rtts[25] < 5e-3
+            assert st.rtt_samples == 50 and st.rtt_last_s == pytest.approx(rtts[-1], rel=10)
+            assert st.frames_rx == 51 and st.frames_tx == 51
+            assert st.crc_errors == st.lost_frames == 0
+            stats = await link.request_stats()
+            assert stats.rx_frames == 52
+
+    run(main)
+
+
+def test_identify_mismatch_is_refused_with_the_fix() -> None:
+    async def main() -> None:
+        async with pty_link({"version": 2, "table_hash": 0xDEADBEEF}) as (link, _):
+            with pytest.raises(ProtocolError) as info:
+                await link.identify()
+            msg = str(info.value)
+            assert "MCU reports protocol v2, table hash 0xDEADBEEF" in msg
+            assert f"needs v{SPEC.version} hash 0x{SPEC.table_hash:08X}" in msg
+            assert "flash the firmware of this tvsd version (make -C firmware" in msg
+
+    run(main)
+
+
+def test_silent_mcu_is_a_device_error() -> None:
+    async def main() -> None:
+        async with pty_link({"answer": False}, identify_timeout_s=0.15) as (link, fake):
+            with pytest.raises(DeviceError, match="no answer from the MCU"):
+                await link.identify()
+            assert len(fake.received) == 3  # one request per attempt
+
+    run(main)
+
+
+def test_bad_port_message() -> None:
+    async def main() -> None:
+        link = McuLink(LinkSettings(port="/dev/ttyNOPE9"), SPEC)
+        with pytest.raises(DeviceError) as info:
+            await link.open()
+        assert str(info.value) == (
+            "cannot open serial port /dev/ttyNOPE9: No such file or directory; "
+            "check the cable / the path / permissions (dialout group)"
+        )
+
+    run(main)
+
+
+def test_heartbeat_task_feeds_clock_sync() -> None:
+    async def main() -> None:
+        async with pty_link(heartbeat_period_s=0.005) as (link, fake):
+            await link.identify()
+            link.start_heartbeat()
+            await wait_for(lambda: link.stats().rtt_samples >= 60, timeout=5.0)
+            st = link.stats()
+            assert link.clock is not None and link.clock.ready
+            # The fake's ticks are host-monotonic × 16 MHz exactly (no drift, known offset).
+            # A kept round trip is off by at most (min RTT + margin)/2; the fitted line's
+            # weights sum in absolute value to < 2 inside the window (5/3 for even spacing).
+            e = (min(link._rtts) + link.settings.clock.rtt_margin_s) / 2
+            t = time.monotonic()
+            assert abs(link.clock.to_host(fake.ticks()) - t) <= 2 * e + 1e-4  # + 0.1 ms: now
+            # drift: a unit mistake (µs vs ticks) would show as 1e6 ppm; 0.3 s of pty round
+            # trips pins the slope to ~3e/L ≈ 1000 ppm at worst
+            assert abs(st.clock_drift_ppm) < 3 * e / 0.3 * 1e6 + 100
+            assert st.rtt_p50_s <= st.rtt_max_s
+
+
+def test_pulse_loss_and_tick_unwrap() -> None:
+    async def main() -> None:
+        got: list[PulseEvent] = []
+        async with pty_link(on_pulse=got.append) as (link, fake):
+            await link.identify()
+            # The first 32-bit count the link sees fixes its 64-bit epoch: 3500 ticks before
+            # the wrap, so the pulses below cross it.
+            base = fake.frozen = 2**32 - 3500
+            await link.ping()
+            seqs = [65533, 65534, 65535, 0, 3, 4, 4, 10]  # wrap; 1,2 lost; 4 twice; 5..9 lost
+            for i, s in enumerate(seqs):
+                fake.send("pulse", i % 2, s, (base + 1000 * i) & 0xFFFF_FFFF)
+            await wait_for(lambda: len(got) == 7)
+            assert [p.event_seq for p in got] == [65533, 65534, 65535, 0, 3, 4, 10]
+            assert link.stats().lost_events == 2 + 5
+            ticks = [p.mcu_ticks for p in got]
+            assert ticks == [base + 1000 * i for i in (0, 1, 2, 3, 4, 5, 7)]  # past 2**32
+            assert [p.channel_name for p in got[:2]] == ["zero", "optical"]
+
+    run(main)
+
+
+def test_state_frames_unwrap_16_bit_ticks_and_encoder() -> None:
+    async def main() -> None:
+        got: list[StateSample] = []
+        async with pty_link(on_state=got.append) as (link, fake):
+            await link.identify()
+            await link.ping()
+            t = fake.ticks()
+            enc = 0
+            # 300 frames 1600 ticks apart (10 kHz at 16 MHz) = 7 wraps; encoder at -300 counts
+            # per frame runs through -32768 several times
+            for _ in range(300):
+                fake.send("state", t & 0xFFFF, ((enc + 0x8000) & 0xFFFF) - 0x8000)
+                t += 1600
+                enc -= 300
+            await wait_for(lambda: len(got) == 300)
+            assert [g.mcu_ticks - got[0].mcu_ticks for g in got] == [1600 * i for i in range(300)]
+            assert [g.encoder for g in got] == [-300 * i for i in range(300)]
+
+    run(main)
+
+
+async def wait_for(cond: Callable[[], bool], timeout: float = 2.0) -> None:
+    t_end = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > t_end:
+            raise AssertionError("condition not met in time")
+        await asyncio.sleep(0.001)
+
+
+def test_link_loss_reported_in_time_and_recovers() -> None:
+    async def main() -> None:
+        events: list[tuple[bool, float]] = []
+        loop = asyncio.get_running_loop()
+        timeout = 0.05
+        async with pty_link(on_link=lambda up: events.append((up, loop.time())), link_timeout_s=timeout) as (
+            link,
+            fake,
+        ):
+            last_sent = 0.0
+            for _ in range(50):  # 1 kHz state stream for 50 ms
+                fake.send("state", fake.ticks() & 0xFFFF, 0)
+                last_sent = loop.time()
+                await asyncio.sleep(0.001)
+            assert events[0][0] is True and link.link_up
+            await wait_for(lambda: len(events) == 2, timeout=1.0)
+            up, t_lost = events[1]
+            latency = t_lost - last_sent
+            print(f"link loss seen {latency * 1e3:.1f} ms after the last frame")
+            assert up is False and not link.link_up and link.stats().link_losses == 1
+            # Not early: the last frame was read after it was sent, so the deadline is later.
+            # Late by at most 15 ms: epoll rounds timeouts up to 1 ms and a busy CI machine
+            # wakes a thread late by a few ms (DESIGN.md: "milliseconds now and then").
+            assert timeout <= latency <= timeout + 0.015
+            fake.send("state", fake.ticks() & 0xFFFF, 0)
+            await wait_for(lambda: len(events) == 3)
+            assert events[2][0] is True and link.link_up
+
+    run(main)
+
+
+def test_corruption_is_counted_and_link_stays_up() -> None:
+    async def main() -> None:
+        async with pty_link() as (link, fake):
+            await link.identify()
+            n = 0
+            expected_crc = expected_bad = expected_lost = 0
+            for k in range(200):
+                wire = bytearray(encode_frame(fake.seq, ID["state"].id, b"\x00\x01\x02\x03"))
+                fake.seq = (fake.seq + 1) & 0xFF
+                if k % 20 == 5:  # payload byte flipped: caught by the CRC
+                    wire[6] ^= 0x40
+                    expected_crc += 1
+                    expected_lost += 1
+                elif k % 20 == 15:  # LEN byte flipped: impossible header
+                    wire[1] ^= 0x10
+                    expected_bad += 1
+                    expected_lost += 1
+                else:
+                    n += 1
+                if k % 50 == 0:
+                    wire = b"\x00\xff\x13" + wire  # line noise before a good frame
+                os.write(fake.master, bytes(wire))
+            await wait_for(lambda: link.stats().frames_rx >= 1 + n)
+            st = link.stats()
+            assert st.frames_rx == 1 + n  # identify + the intact state frames
+            assert st.crc_errors == expected_crc and st.bad_headers == expected_bad
+            assert st.lost_frames == expected_lost
+            assert st.resyncs >= expected_crc + expected_bad + 4
+            assert link.link_up and st.link_losses == 0
+            assert await link.ping() > 0  # still talking
+
+    run(main)
+
+
+def test_send_pwm_from_another_thread() -> None:
+    async def main() -> None:
+        async with pty_link(heartbeat_period_s=0.002) as (link, fake):
+            await link.identify()
+            link.start_heartbeat()  # the loop thread sends too: SEQ must stay consistent
+            n = 3000
+            sent = []
+
+            def control() -> None:
+                for i in range(n):
+                    duty = ((i % 200) - 100) / 100
+                    if link.send_pwm(duty):
+                        sent.append(round(duty * 32767))
+                    time.sleep(0.0001)  # ~10 kHz
+
+            th = threading.Thread(target=control)
+            th.start()
+            while th.is_alive():
+                await asyncio.sleep(0.01)
+            th.join()
+            await wait_for(lambda: len(fake.pwm()) == len(sent))
+            st = link.stats()
+            assert fake.pwm() == sent  # in order, none torn
+            assert len(sent) + st.tx_dropped == n
+            # the fake saw every frame of both threads with consecutive SEQs
+            assert fake.decoder.stats.lost_frames == fake.decoder.stats.crc_errors == 0
+            assert fake.decoder.stats.duplicates == 0
+
+    run(main)
+
+
+def test_full_output_refuses_whole_frames() -> None:
+    async def main() -> None:
+        async with pty_link(tx_buffer_bytes=64) as (link, fake):
+            loop = asyncio.get_running_loop()
+            loop.remove_reader(fake.master)  # the MCU stops reading: the pty fills up
+            ok = sum(link.send_pwm(0.5) for _ in range(20000))
+            st = link.stats()
+            assert st.tx_dropped > 0 and ok + st.tx_dropped == 20000
+            loop.add_reader(fake.master, fake.on_readable)
+            for _ in range(200):  # drain: the MCU reads, the host flushes what is pending
+                link.flush()
+                await asyncio.sleep(0.002)
+                if len(fake.pwm()) == ok:
+                    break
+            assert len(fake.pwm()) == ok
+            assert fake.decoder.stats.crc_errors == fake.decoder.stats.bad_headers == 0
+
+    run(main)
+
+
+def test_nan_duty_is_zero_and_out_of_range_is_clamped() -> None:
+    async def main() -> None:
+        async with pty_link() as (link, fake):
+            for d in (float("nan"), 2.0, -7.0, 0.25):
+                assert link.send_pwm(d)
+            await wait_for(lambda: len(fake.pwm()) == 4)
+            assert fake.pwm() == [0, 32767, -32767, round(0.25 * 32767)]
+
+    run(main)
+
+
+def test_refusal_names_the_frame_by_its_seq() -> None:
+    async def main() -> None:
+        refused = []
+        async with pty_link(on_refused=refused.append) as (link, fake):
+            link.send_laser(True)
+            link.send_stepper_move(1, -250, 400, 800)
+            await wait_for(lambda: len(fake.received) == 2)
+            seq = fake.received[1].seq
+            fake.send("ack", fake.received[0].seq, 0)  # ok: not a refusal
+            fake.send("ack", seq, 3)
+            await wait_for(lambda: len(refused) == 1)
+            r = refused[0]
+            assert (r.name, r.values, r.status) == ("stepper_move", (1, -250, 400, 800), 3)
+            assert r.reason == "the stepper axis is already moving"
+            assert link.stats().nacks == 1
+
+    run(main)
+
+
+def test_state_ticks_reanchored_by_the_next_heartbeat() -> None:
+    async def main() -> None:
+        got: list[StateSample] = []
+        async with pty_link(on_state=got.append) as (link, fake):
+            await link.identify()
+            t = fake.frozen = 1_000_000
+            await link.ping()
+            fake.send("state", t & 0xFFFF, 0)
+            # 5 frames lost, and meanwhile 3 wraps of ticks16 that no host clock saw pass
+            # (the fake's clock is frozen): the host's first guess must be wrong by 3 × 65536
+            fake.seq = (fake.seq + 5) & 0xFF
+            jump = 3 * 65536 + 1600
+            fake.send("state", (t + jump) & 0xFFFF, 0)
+            await wait_for(lambda: len(got) == 2)
+            # the host-clock guess gets ticks16 right but not the wraps it never saw: flagged
+            assert (got[1].mcu_ticks - got[0].mcu_ticks - jump) % 65536 == 0
+            assert got[0].exact and not got[1].exact
+            # the next heartbeat_ack carries the full 32-bit count and re-anchors the stream
+            fake.frozen = t + jump + 800
+            await link.ping()
+            fake.send("state", (t + jump + 1600) & 0xFFFF, 0)
+            await wait_for(lambda: len(got) == 3)
+            assert got[2].mcu_ticks - got[0].mcu_ticks == jump + 1600 and got[2].exact
+            assert link.stats().lost_frames == 5
+
+    run(main)
+
+
+def test_unplugged_device_is_reported() -> None:
+    async def main() -> None:
+        events: list[bool] = []
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        loop = asyncio.get_running_loop()
+        fake = FakeMcu(master)
+        loop.add_reader(master, fake.on_readable)
+        link = McuLink(LinkSettings(port=os.ttyname(slave)), SPEC, on_link=events.append)
+        await link.open()
+        try:
+            await link.identify()
+            assert events == [True]
+            loop.remove_reader(master)
+            os.close(master)  # the pty's other end vanishes, as a USB adapter pulled out
+            os.close(slave)
+            await wait_for(lambda: events == [True, False])
+            assert link.tx_error is not None and not link.send_pwm(0.2)
+        finally:
+            await link.close()
+
+    run(main)
+
+
+def test_out_of_range_field_is_a_usage_error() -> None:
+    async def main() -> None:
+        async with pty_link() as (link, _):
+            with pytest.raises(UsageError, match=r"cannot send stepper_move\(axis=0, steps="):
+                link.send_stepper_move(0, 2**40, 100, 100)
+
+    run(main)
+
+
+def test_settings_are_checked() -> None:
+    with pytest.raises(ConfigError, match=r"mcu\.link_timeout_s must be > 0"):
+        LinkSettings(port="/dev/x", link_timeout_s=0)
+    with pytest.raises(ConfigError, match="tx_buffer_bytes must be >= 38"):
+        LinkSettings(port="/dev/x", tx_buffer_bytes=10)

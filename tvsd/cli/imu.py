@@ -1,0 +1,443 @@
+"""tvsctl imu — capture and calibrate the two MPU6050s, on the bus or on their simulated twins.
+
+  tvsctl imu capture [--sil] [--seconds S] [--out FILE] [--json] [--plot FILE.png]
+  tvsctl imu calibrate [--sil] [--seconds S] [--out FILE] [--json]
+  tvsctl imu bench [--seconds S] [--json]
+
+--sil runs the twins (tvsd.sim.mpu6050) on a simulated clock; the SA sensor's motion comes from the
+SIL drive model spinning at --rps (--motion plant, the default; --effect switches the model's
+effects on) or from SyntheticMotion (--motion synthetic); the PL sensor's from SyntheticMotion:
+faster than real time, unless --realtime. Faults can be injected with --sil-fault.
+
+Samples file (--out), one file for both sensors, read back by read_samples():
+  # tvs-imu: 1
+  # sample_rate_hz: 1000          nominal; the fitted rates follow
+  # rate_hz_pl: 1026.99           (also rate_hz_sa, lost_pl, lost_sa, sa_axis, gyro_bias_removed)
+  t,sensor,ax,ay,az,gx,gy,gz      t s on the fitted sensor clock (a jump = lost samples),
+                                  sensor pl|sa, accel m/s^2, gyro rad/s
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from tvsd.errors import EXIT_OK, DataFileError, DeviceError, UsageError
+from tvsd.hw import imu_calibration as cal
+from tvsd.hw.imu_reader import Clock, ImuReader, ManualClock, MonotonicClock, SensorReader
+from tvsd.hw.mpu6050 import DLPF_DELAY_S, SA_AXES, ImuSettings, Mpu6050, SMBusLike, angular_acceleration
+from tvsd.hw.mpu6050 import bus_budget as _bus_budget
+from tvsd.sim.imu_motion import ArrayMotion, MotionSource, SyntheticParams, synthetic_pair
+from tvsd.sim.mpu6050 import FAULT_KINDS, Fault, SimI2CBus, SimMpu6050, sil_pair
+
+NAMES = ("pl", "sa")
+LINE_MIN_HZ = 2.0  # below: the mounts' leak and drift, not vibration lines
+
+
+@dataclass
+class SensorRecord:
+    t: np.ndarray
+    accel: np.ndarray
+    gyro: np.ndarray
+    rate_hz: float
+    status: dict[str, object]
+
+
+def open_bus(settings: ImuSettings) -> SMBusLike:
+    """The real bus, or DeviceError saying how to get one."""
+    try:
+        import smbus2
+
+        return smbus2.SMBus(settings.bus)
+    except (OSError, ImportError) as exc:
+        raise DeviceError(
+            f"cannot open /dev/i2c-{settings.bus} ({exc}): enable I2C (raspi-config, or "
+            "dtparam=i2c_arm=on in config.txt), check imu.bus, and that this user is in group "
+            "i2c; or use --sil for the simulated sensors"
+        ) from exc
+
+
+def run_capture(
+    bus: SMBusLike,
+    settings: ImuSettings,
+    clock: Clock,
+    seconds: float,
+    gyro_bias: dict[str, np.ndarray] | None = None,
+) -> dict[str, SensorRecord]:
+    """Capture from both sensors; times from each sensor's final clock fit."""
+    readers = [
+        SensorReader(Mpu6050(bus, n, settings, clock.sleep), clock, (gyro_bias or {}).get(n)) for n in NAMES
+    ]
+    batches = ImuReader(readers, clock).run_for(seconds)
+    out = {}
+    for r in readers:
+        mine = [b for b in batches if b.sensor == r.name]
+        if not mine:
+            raise DeviceError(f"{r.name} IMU delivered no samples: {r.last_error or 'no data'}")
+        t = np.concatenate([r.fit.times(b.k, b.epoch) for b in mine])
+        out[r.name] = SensorRecord(
+            t,
+            np.concatenate([b.accel for b in mine]),
+            np.concatenate([b.gyro for b in mine]),
+            r.fit.rate(),
+            r.status(),
+        )
+    return out
+
+
+def sa_alpha(rec: SensorRecord, axis: int) -> tuple[np.ndarray, float]:
+    """Angular acceleration about the SA axis over the longest gap-free run, and its rate.
+
+    Filling gaps would put flat stretches into the record, and a flat-top window weighs the
+    middle of the record most: a gap there costs far more line amplitude than its length.
+    """
+    fs = rec.rate_hz
+    k = np.rint((rec.t - rec.t[0]) * fs).astype(np.int64)
+    breaks = np.flatnonzero(np.diff(k) != 1) + 1
+    runs = np.split(np.arange(len(k)), breaks)
+    best = max(runs, key=len)
+    return angular_acceleration(rec.gyro[best, axis], fs), fs
+
+
+def dominant_line(alpha: np.ndarray, fs: float) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """Frequency and amplitude (rad/s^2) of the strongest line above LINE_MIN_HZ.
+
+    Flat-top window: a line's amplitude is read to ~0.1 % wherever it falls between bins.
+    """
+    from scipy.signal import periodogram
+
+    f, p = periodogram(alpha - alpha.mean(), fs, window="flattop", scaling="spectrum")
+    band = (f >= LINE_MIN_HZ) & (f <= 0.4 * fs)
+    i = int(np.argmax(np.where(band, p, -1.0)))
+    lobe = slice(max(i - 3, 0), i + 4)  # the flat-top main lobe: its centroid beats one bin
+    centre = float(np.sum(f[lobe] * p[lobe]) / np.sum(p[lobe]))
+    return centre, float(np.sqrt(2 * p[i])), f, p
+
+
+def write_samples(path: Path, recs: dict[str, SensorRecord], settings: ImuSettings, calibrated: bool) -> None:
+    lines = ["# tvs-imu: 1", f"# sample_rate_hz: {settings.sample_rate_hz:g}"]
+    lines += [f"# rate_hz_{n}: {r.rate_hz:.4f}" for n, r in recs.items()]
+    lines += [f"# lost_{n}: {r.status['lost']}" for n, r in recs.items()]
+    lines += [f"# sa_axis: {settings.sa_axis}", f"# gyro_bias_removed: {str(calibrated).lower()}"]
+    lines.append("t,sensor,ax,ay,az,gx,gy,gz")
+    try:
+        with open(path, "w") as f:
+            f.write("\n".join(lines) + "\n")
+            for n, r in recs.items():
+                data = np.column_stack([r.t, r.accel, r.gyro])
+                for row in data:
+                    f.write(f"{row[0]:.6f},{n}," + ",".join(f"{v:.6g}" for v in row[1:]) + "\n")
+    except OSError as exc:
+        raise DataFileError(f"{path}: cannot write samples ({exc.strerror})") from exc
+
+
+def read_samples(path: Path) -> dict[str, dict[str, np.ndarray]]:
+    """Read a samples file: {sensor: {"t", "accel", "gyro"}} plus metadata under "meta"."""
+    meta: dict[str, str] = {}
+    try:
+        with open(path) as f:
+            head = f.readline().strip()
+            if head != "# tvs-imu: 1":
+                raise DataFileError(f"{path}: line 1 is {head!r}, expected '# tvs-imu: 1'")
+            header = ""
+            for line in f:
+                if not line.startswith("#"):
+                    header = line.strip()
+                    break
+                key, _, value = line[1:].partition(":")
+                meta[key.strip()] = value.strip()
+            if header != "t,sensor,ax,ay,az,gx,gy,gz":
+                raise DataFileError(f"{path}: header {header!r}, expected t,sensor,ax,ay,az,gx,gy,gz")
+            rows = [line.rstrip("\n").split(",") for line in f if line.strip()]
+    except OSError as exc:
+        raise DataFileError(f"{path}: cannot read ({exc.strerror})") from exc
+    out: dict[str, dict[str, np.ndarray]] = {}
+    for name in sorted({r[1] for r in rows}):
+        mine = [r for r in rows if r[1] == name]
+        try:
+            data = np.array([[float(v) for v in (r[0], *r[2:])] for r in mine])
+        except (ValueError, IndexError) as exc:
+            raise DataFileError(f"{path}: sensor {name}: bad number or column count ({exc})") from exc
+        if data.shape[1] != 7 or not np.all(np.isfinite(data)) or np.any(np.diff(data[:, 0]) <= 0):
+            raise DataFileError(f"{path}: sensor {name}: 7 finite columns, t increasing expected")
+        out[name] = {"t": data[:, 0], "accel": data[:, 1:4], "gyro": data[:, 4:7]}
+    out["meta"] = {k: np.array(v) for k, v in meta.items()}
+    return out
+
+
+def _parse_fault(spec: str, settings: ImuSettings) -> Fault:
+    parts = spec.split(":")
+    try:
+        kind, start, end = parts[0], float(parts[1]), float(parts[2])
+        addr = settings.addresses[parts[3]] if len(parts) > 3 else None
+        return Fault(kind, start, end, addr)
+    except (IndexError, ValueError, KeyError) as exc:
+        raise UsageError(
+            f"--sil-fault {spec!r}: expected KIND:START:END[:pl|sa], KIND one of "
+            f"{', '.join(FAULT_KINDS)}, times in s"
+        ) from exc
+
+
+def _sil(
+    args: argparse.Namespace, settings: ImuSettings, at_rest: bool
+) -> tuple[SimI2CBus, Clock, dict[str, SimMpu6050]]:
+    clock: Clock = MonotonicClock() if args.realtime else ManualClock()
+    params = SyntheticParams(
+        rps=0.0 if at_rest else args.rps,
+        imbalance_rad_s2=0.0 if at_rest else args.imbalance,
+        vibration_std_rad_s2=0.0 if at_rest else args.vibration,
+        resonance_hz=args.resonance_hz,
+        resonance_rad_s2=0.0 if at_rest else args.resonance,
+        gamma_rad=np.radians(args.gamma_deg),
+        axis=SA_AXES[settings.sa_axis],
+        seed=args.seed,
+    )
+    motions: dict[str, MotionSource] = dict(synthetic_pair(params))
+    if args.motion == "plant" and not at_rest:
+        motions["sa"] = _plant_motion(args, SA_AXES[settings.sa_axis])
+    bus, devices = sil_pair(settings, clock, motions, bus_hz=None if args.realtime else 400e3, seed=args.seed)
+    bus.faults = [_parse_fault(s, settings) for s in args.sil_fault]
+    if args.sil_who_am_i is not None:
+        for dev in devices.values():
+            dev.who_am_i = dev.regs[0x75] = args.sil_who_am_i
+    return bus, clock, devices
+
+
+def _plant_motion(args: argparse.Namespace, axis: int) -> MotionSource:
+    """The SA sensor's motion from the SIL drive model spinning at --rps (config/tvsd.yaml): the
+    disturbance acceleration about the SA axis the plant computes, with --imbalance (rad/s²) as an
+    imbalance torque J·α unless --effect names the effects. The vibration is the OU reading of
+    eq. (12) with std --vibration (MODEL-NOTES §4): what an IMU measures is band-limited; the
+    literal SDE's acceleration is white to 5 kHz and would alias into the 1 kHz samples."""
+    from tvsd.config import VibrationConfig, load_config
+    from tvsd.model.effects import parse_effects
+    from tvsd.sim import runs
+
+    cfg = load_config()
+    texts = list(args.effect or [])
+    if not texts and args.imbalance > 0:
+        texts.append(f"imbalance:amplitude={args.imbalance * cfg.plant.J:.6g},phase=0")
+    vib = VibrationConfig(model="ou", sigma_v=args.vibration, tau_n_s=cfg.sil_or_default.vibration.tau_n_s)
+    setup = runs.Setup.from_config(cfg, effects=parse_effects(texts), vibration=vib, seed=args.seed)
+    settle = abs(args.rps) / cfg.control.scan_accel_rps2 + 1.0  # spin up, then capture
+    trace = runs.spin(setup, args.rps, settle + args.seconds + 1.0, decim=1)
+    keep = trace.t >= settle - 0.5
+    t = trace.t[keep] - settle
+    return ArrayMotion(t, trace.disturbance[keep], np.radians(args.gamma_deg), trace.omega[keep], axis=axis)
+
+
+def _setup(args: argparse.Namespace, at_rest: bool) -> tuple[ImuSettings, SMBusLike, Clock]:
+    if not 0.5 <= args.seconds <= 3600:
+        raise UsageError(f"--seconds {args.seconds:g}: use 0.5 .. 3600")
+    settings = ImuSettings(bus=args.bus) if args.bus is not None else ImuSettings()
+    if args.sil:
+        bus, clock, _ = _sil(args, settings, at_rest)
+        return settings, bus, clock
+    return settings, open_bus(settings), MonotonicClock()
+
+
+def cmd_capture(args: argparse.Namespace) -> int:
+    settings, bus, clock = _setup(args, at_rest=False)
+    if args.calibration:  # asked for: it must be there
+        calib: dict[str, cal.SensorCalibration] | None = cal.load(args.calibration)
+    elif args.sil:  # the twins have their own biases; a real file would not fit them
+        calib = None
+    else:
+        calib = cal.load_or_none(settings.calibration_file)
+    bias = {n: np.asarray(c.gyro_bias_rad_s) for n, c in (calib or {}).items()}
+    try:
+        recs = run_capture(bus, settings, clock, args.seconds, bias)
+    finally:
+        bus.close()
+    alpha, fs = sa_alpha(recs["sa"], SA_AXES[settings.sa_axis])
+    f_peak, amp, f, p = dominant_line(alpha, fs)
+    result: dict[str, object] = {
+        "sensors": {
+            n: {
+                "rate_hz": round(r.rate_hz, 3),
+                **{
+                    k: r.status[k]
+                    for k in (
+                        "samples",
+                        "overflows",
+                        "errors",
+                        "lost",
+                        "resyncs",
+                        "restarts",
+                        "state",
+                        "chip",
+                    )
+                },
+            }
+            for n, r in recs.items()
+        },
+        "dominant_hz": round(f_peak, 3),
+        "peak_rad_s2": round(amp, 4),
+        "spectrum_s": round(len(alpha) / fs, 3),
+        "dlpf_delay_s": DLPF_DELAY_S[settings.dlpf_cfg],  # not removed from the times
+        "calibrated": calib is not None,
+        "source": "sil" if args.sil else f"i2c-{settings.bus}",
+    }
+    if args.sil:
+        result["rotation_hz"] = args.rps
+    if args.out:
+        write_samples(args.out, recs, settings, calib is not None)
+        result["out"] = str(args.out)
+    if args.plot:
+        _plot(args.plot, f, p, f_peak, recs)
+        result["plot"] = str(args.plot)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        for n, s in result["sensors"].items():  # type: ignore[attr-defined]
+            print(
+                f"{n}: {s['chip']}, {s['rate_hz']} Hz, {s['samples']} samples, {s['lost']} lost, "
+                f"{s['overflows']} overflows, {s['errors']} errors, {s['state']}"
+            )
+        print(
+            f"SA angular acceleration: dominant line {f_peak:.2f} Hz, {amp:.3g} rad/s^2 "
+            f"(longest gap-free {len(alpha) / fs:.2f} s)"
+        )
+        if calib is None:
+            print("uncalibrated (no gyro bias removed): run `tvsctl imu calibrate` at rest")
+    return EXIT_OK
+
+
+def _plot(path: Path, f: np.ndarray, p: np.ndarray, f_peak: float, recs: dict[str, SensorRecord]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.semilogy(f, np.sqrt(2 * p) + 1e-9, lw=0.8, label="SA angular acceleration")
+    ax.axvline(f_peak, color="r", ls=":", label=f"{f_peak:.2f} Hz")
+    ax.set(xlabel="frequency (Hz)", ylabel="amplitude (rad/s²)", xlim=(0, 0.4 * recs["sa"].rate_hz))
+    ax.set_title("SA angular acceleration about the SA axis (Δv), longest gap-free run")
+    ax.legend()
+    fig.tight_layout()
+    try:
+        fig.savefig(path)
+    except OSError as exc:
+        raise DataFileError(f"{path}: cannot write plot ({exc.strerror})") from exc
+    finally:
+        plt.close(fig)
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    settings, bus, clock = _setup(args, at_rest=not args.sil_moving)
+    try:
+        recs = run_capture(bus, settings, clock, args.seconds)
+    finally:
+        bus.close()
+    result = {n: cal.calibrate_sensor(n, r.accel, r.gyro, str(r.status["chip"])) for n, r in recs.items()}
+    out = args.out or settings.calibration_file
+    try:
+        cal.save(out, result)
+    except OSError as exc:
+        raise DataFileError(f"{out}: cannot write calibration ({exc}); pass --out FILE") from exc
+    sensors = {
+        n: {"gyro_bias_deg_s": np.degrees(c.gyro_bias_rad_s).round(4).tolist(), "samples": c.samples}
+        for n, c in result.items()
+    }
+    if args.json:
+        print(json.dumps({"file": str(out), "sensors": sensors}))
+    else:
+        for n, v in sensors.items():
+            print(f"{n}: gyro bias {v['gyro_bias_deg_s']} deg/s ({v['samples']} samples)")
+        print(f"written to {out}")
+    return EXIT_OK
+
+
+def bench_capture(seconds: float = 5.0) -> dict[str, float]:
+    """Host CPU per second of capture (two twins at 1 kHz, simulated clock) and the bus budget.
+
+    The twins' own sample generation is timed apart and subtracted: what remains is driver +
+    reader + the bus object's call overhead (a real bus adds the kernel's ioctl time).
+    """
+    settings = ImuSettings()
+    clock = ManualClock()
+    bus, devices = sil_pair(settings, clock, signal="counter", bus_hz=400e3)
+    readers = [SensorReader(Mpu6050(bus, n, settings, clock.sleep), clock) for n in NAMES]
+    reader = ImuReader(readers, clock)
+    reader.run_for(0.5)  # bring-up and first fits out of the way: measure the steady state
+    bus.bits = 0
+    twin0 = sum(d.cpu_s for d in devices.values())
+    t0 = time.process_time()
+    reader.run_for(seconds)
+    total = time.process_time() - t0
+    twin = sum(d.cpu_s for d in devices.values()) - twin0
+    budget = _bus_budget(settings)
+    return {
+        "capture_s": seconds,
+        "cpu_s_per_s_host": (total - twin) / seconds,
+        "cpu_s_per_s_twin": twin / seconds,
+        "sim_bus_bits_per_s": bus.bits / seconds,
+        **budget,
+    }
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    result = bench_capture(args.seconds)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        for k, v in result.items():
+            print(f"{k:28s} {v:.6g}")
+    return EXIT_OK
+
+
+def _common(p: argparse.ArgumentParser, seconds: float) -> None:
+    p.add_argument("--sil", action="store_true", help="simulated sensors (SIL plant motion)")
+    p.add_argument("--seconds", type=float, default=seconds)
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--bus", type=int, default=None, help="I2C bus number (default imu.bus)")
+    p.add_argument("--realtime", action="store_true", help="with --sil: run at wall-clock pace")
+    p.add_argument("--rps", type=float, default=25.0, help="--sil: rotation rate, rev/s")
+    p.add_argument("--imbalance", type=float, default=2.0, help="--sil: line at rps, rad/s^2")
+    p.add_argument("--vibration", type=float, default=0.3, help="--sil: OU std, rad/s^2")
+    p.add_argument("--resonance-hz", type=float, default=0.0)
+    p.add_argument("--resonance", type=float, default=0.0, help="--sil: its amplitude, rad/s^2")
+    p.add_argument("--gamma-deg", type=float, default=0.0, help="--sil: rod tilt")
+    p.add_argument(
+        "--motion",
+        choices=("plant", "synthetic"),
+        default="plant",
+        help="--sil: SA motion from the SIL drive model (default) or a synthetic source",
+    )
+    p.add_argument(
+        "--effect",
+        action="append",
+        default=None,
+        metavar="NAME:k=v,...",
+        help="--sil with the plant: effects of the drive model (tvsctl sim spin --help)",
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--sil-fault", action="append", default=[], metavar="KIND:START:END[:SENSOR]")
+    p.add_argument("--sil-who-am-i", type=lambda s: int(s, 0), default=None)
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    imu = subparsers.add_parser("imu", help="MPU6050 capture, calibration, benchmark")
+    sub = imu.add_subparsers(dest="imu_command", metavar="SUBCOMMAND", parser_class=type(imu))
+    sub.required = True
+    cap = sub.add_parser("capture", help="capture both IMUs, report the dominant line")
+    _common(cap, 10.0)
+    cap.add_argument("--out", type=Path, help="write the samples (CSV, see tvsd.cli.imu)")
+    cap.add_argument("--plot", type=Path, help="spectrum of the SA angular acceleration (PNG)")
+    cap.add_argument("--calibration", type=Path, help="calibration file (default imu's)")
+    cap.set_defaults(func=cmd_capture)
+    calp = sub.add_parser("calibrate", help="gyro bias at rest, saved apart from the config")
+    _common(calp, 2.0)
+    calp.add_argument("--out", type=Path, help="calibration file (default imu's)")
+    calp.add_argument("--sil-moving", action="store_true", help="--sil: keep the motor spinning")
+    calp.set_defaults(func=cmd_calibrate)
+    bench = sub.add_parser("bench", help="CPU per second of capture, bus budget")
+    bench.add_argument("--seconds", type=float, default=5.0)
+    bench.add_argument("--json", action="store_true")
+    bench.set_defaults(func=cmd_bench)

@@ -1,0 +1,520 @@
+"""IMU reader: drains both MPU6050 FIFOs in one thread, survives the bus, counts every loss.
+
+Policy lives here, mechanism in mpu6050.py. Per sensor, each poll reads FIFO_COUNT, the whole
+frames present, then INT_STATUS. Frames are held as *pending* until that status read says no
+overflow happened while they sat in the FIFO (an overflow drops the oldest bytes and misaligns what
+follows); then they are delivered. A byte count that is not a whole number of frames also means
+misalignment (a failed transfer that popped part of a frame); so does any failed FIFO transfer
+but a NACK (it may have popped whole frames, which no count reveals). All end in a *resync*: FIFO
+reset, and a new epoch whose first sample number is estimated from the fitted sensor clock, so the
+gap is counted as lost samples. The sensor has no sample counter: without resyncs the count is
+exact; with them it is as good as the clock fit (SensorReader.lost refines it as the fit matures;
+the property tests bound it by the rate error times the span, +-1).
+
+Sample numbers and times: within an epoch the k-th frame is sample k_start + k. The sensor clock
+(a few % off nominal) is fitted against host read times: the rate by least squares with outlier
+rejection (ClockFit.rate), each epoch's phase by the lower envelope of t - K/rate (ClockFit.t0;
+K = newest sample number at host time t, so K = floor(rate·(t - t0))). A sample's time
+is t0 + k/rate: when it entered the FIFO (the DLPF's delay, mpu6050.DLPF_DELAY_S, is not removed).
+
+Failures: every bus error is counted, retried after an exponential back-off (5 ms doubling to
+0.5 s), and after two in a row the sensor is "degraded"; a sensor found reset or asleep after a
+failure is brought up again. The loop never dies: an unexpected exception is recorded and backed
+off like a bus error. The thread hands batches to a callback (use asyncio_sink for an event loop).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from tvsd.errors import DeviceError
+from tvsd.hw import mpu6050 as reg
+from tvsd.hw.mpu6050 import ImuSettings, Mpu6050
+
+log = logging.getLogger(__name__)
+BACKOFF_MIN_S, BACKOFF_MAX_S = 0.005, 0.5
+
+
+class Clock(Protocol):
+    def now(self) -> float: ...
+
+    def sleep(self, seconds: float) -> None: ...
+
+
+class MonotonicClock:
+    """Real time."""
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def sleep(self, seconds: float) -> None:
+        if seconds > 0:
+            time.sleep(seconds)
+
+
+class ManualClock:
+    """Simulated time: sleeping advances it at once, so a capture runs faster than real time."""
+
+    def __init__(self, start: float = 0.0) -> None:
+        self.t = start
+
+    def now(self) -> float:
+        return self.t
+
+    def sleep(self, seconds: float) -> None:
+        if seconds > 0:
+            self.t += seconds
+
+
+def _line_rate(
+    t: np.ndarray, k: np.ndarray, group: np.ndarray
+) -> tuple[float, float] | None:
+    """Slope of k against t (one offset per group) and its standard error; two rounds of
+    outlier rejection. None when the span is too short to beat the nominal rate."""
+    keep = np.ones(len(t), dtype=bool)
+    out = None
+    for _ in range(2):
+        tk, kk, g = t[keep], k[keep], group[keep]
+        sizes = np.bincount(g, minlength=group.max() + 1).clip(min=1)
+        dt = tk - (np.bincount(g, tk, minlength=sizes.size) / sizes)[g]
+        dk = kk - (np.bincount(g, kk, minlength=sizes.size) / sizes)[g]
+        sxx = float(np.sum(dt * dt))
+        if sxx < 0.01:  # under ~0.1 s of span
+            return out
+        rate = float(np.sum(dt * dk) / sxx)
+        resid = dk - rate * dt
+        # K is floor(rate t): at least the 1/sqrt(12) sample of uniform quantization
+        spread = max(float(np.std(resid)), 12**-0.5)
+        out = (rate, spread / np.sqrt(sxx))
+        scale = max(1.4826 * float(np.median(np.abs(resid - np.median(resid)))), 1 / 3)
+        keep[keep] = np.abs(resid - np.median(resid)) <= 3 * scale
+    return out
+
+
+class ClockFit:
+    """Fit of the sensor's sample clock to host time: a shared rate, one phase per epoch."""
+
+    PHASE_POINTS = 100  # 2 s of polls at 50 Hz
+    MAX_EPOCHS = 64  # phases kept for the loss refinement (SensorReader.lost)
+
+    def __init__(self, nominal_hz: float, window: int = 4096) -> None:
+        self.nominal_hz = nominal_hz
+        self.points: deque[tuple[float, int, int]] = deque(maxlen=window)  # (t, K, epoch)
+        self.tails: dict[int, deque[tuple[float, int]]] = {}  # each epoch's latest points
+        self.dropped_fix = 0  # loss refinement of epochs dropped from tails
+        self._rate: float | None = None
+        self._adds = self._rate_adds = 0  # the rate is refitted only after new points
+        self.rate_stderr = float("inf")  # standard error of the last fitted rate, Hz
+
+    def add(self, t: float, newest: int, epoch: int) -> None:
+        self.points.append((t, newest, epoch))
+        self._adds += 1
+        self.tails.setdefault(epoch, deque(maxlen=self.PHASE_POINTS)).append((t, newest))
+        while len(self.tails) > self.MAX_EPOCHS:  # keep what SensorReader.lost needs
+            oldest = min(self.tails)
+            rate = self.rate()
+            self.dropped_fix += round((self.t0(oldest + 1, rate) - self.t0(oldest, rate)) * rate)
+            del self.tails[oldest]
+
+    def rate(self) -> float:
+        """Sensor samples per second of host time; its standard error goes to rate_stderr.
+
+        First by least squares with one offset per epoch (each epoch's numbering may be off by
+        whole samples at its estimated start), then refitted over chains of epochs linked by
+        unambiguous whole-period phase steps (see below). Reads more than 3 robust sigmas (at
+        least 1 sample) off the line are dropped.
+        """
+        if len(self.points) < 8:
+            return self.nominal_hz  # rate_stderr stays inf: not fitted yet
+        # refit after a fraction of new points: every read while young, every 2 s when mature
+        due = min(max(1, len(self.points) // 8), 100)
+        if self._rate is not None and self._adds - self._rate_adds < due:
+            return self._rate
+        p = np.asarray(self.points)
+        t, k = p[:, 0], p[:, 1]
+        _, group = np.unique(p[:, 2], return_inverse=True)
+        pooled = _line_rate(t, k, group)
+        if pooled is None:
+            self.rate_stderr = float("inf")
+            return self.nominal_hz
+        rate, stderr = pooled
+        # Chain epochs whose phase step is clearly a whole number of periods into segments with
+        # one numbering, and refit with one offset per segment: a flaky bus leaves many short
+        # epochs, each holding little slope information on its own. Epochs of a few reads have
+        # phases known to about a sample only, so they are left out of the chaining.
+        sizes = np.bincount(group)
+        solid = sizes[group] >= 5
+        if solid.any():
+            t, k = t[solid], k[solid]
+            _, group = np.unique(group[solid], return_inverse=True)
+            first_t = np.full(group.max() + 1, np.inf)
+            np.minimum.at(first_t, group, t)
+            phase = np.full(group.max() + 1, np.inf)
+            np.minimum.at(phase, group, t - k / rate)
+            x = np.diff(phase) * rate
+            near = np.abs(x - np.rint(x)) < 0.25  # phases good to ~0.2 period with >= 5 reads
+            sure = stderr * np.diff(first_t) < 0.1  # the rate's error adds < 0.1 period
+            link = near & sure
+            steps = np.concatenate([[0.0], np.cumsum(np.where(link, np.rint(x), 0.0))])
+            segment = np.concatenate([[0], np.cumsum(~link)])
+            fit = _line_rate(t, k + steps[group], segment[group])
+            if fit is not None:
+                rate, stderr = fit
+        # a fit more than 10 % off nominal is not an MPU6050 clock: distrust it
+        if abs(rate / self.nominal_hz - 1) >= 0.1:
+            rate, stderr = self.nominal_hz, float("inf")
+        self._rate, self._rate_adds, self.rate_stderr = rate, self._adds, stderr
+        return rate
+
+    def t0(self, epoch: int, rate: float | None = None) -> float:
+        """Time of sample number 0 on the epoch's phase (the latest epoch's if it has none).
+
+        t is taken after the count read returns, so host delays only make t later: t - K/rate
+        >= t0 + (least latency), and its minimum over recent points (phases spread over a
+        sample period) is t0 to a small fraction of a sample: a lower envelope, as NTP's
+        minimum-delay filter. Recent points only, so a rate error cannot drift it.
+        """
+        rate = rate or self.rate()
+        if not self.tails:
+            raise ValueError("no clock points yet")
+        mine = np.asarray(self.tails.get(epoch) or self.tails[max(self.tails)])
+        return float(np.min(mine[:, 0] - mine[:, 1] / rate))
+
+    def newest_at(self, t: float) -> int:
+        """Expected newest sample number at host time t, on the latest epoch's phase."""
+        rate = self.rate()
+        return int(np.floor((t - self.t0(max(self.tails), rate)) * rate))
+
+    def times(self, k: np.ndarray, epoch: int) -> np.ndarray:
+        rate = self.rate()
+        return self.t0(epoch, rate) + np.asarray(k, dtype=np.float64) / rate
+
+
+@dataclass(frozen=True)
+class ImuBatch:
+    sensor: str
+    k: np.ndarray  # sample numbers (int64); a jump is a counted loss
+    epoch: int
+    t: np.ndarray  # s, host monotonic time base, from the clock fit at delivery
+    accel: np.ndarray  # (n, 3) m/s^2
+    gyro: np.ndarray  # (n, 3) rad/s, calibration bias removed
+    raw: np.ndarray  # (n, 6) int16 as read
+
+
+class SensorReader:
+    """One sensor's poll state machine. Call poll() from the reader thread only."""
+
+    def __init__(
+        self,
+        driver: Mpu6050,
+        clock: Clock,
+        gyro_bias: np.ndarray | tuple[float, float, float] | None = None,
+    ) -> None:
+        self.driver, self.clock = driver, clock
+        self.name = driver.name
+        self.settings: ImuSettings = driver.settings
+        self.gyro_bias = np.zeros(3) if gyro_bias is None else np.asarray(gyro_bias, float)
+        self.fit = ClockFit(self.settings.sample_rate_hz)
+        self.up = False
+        self.chip = ""
+        self.state = "starting"
+        self.samples = self.errors = self.overflows = self.resyncs = self.restarts = 0
+        self._gaps = 0  # samples skipped at epoch starts, as first estimated
+        self._open_gap = 0  # the gap before the current epoch, until an epoch delivers
+        self._first_epoch = self._delivered_epoch = 0  # first and latest that delivered
+        self.last_error = ""
+        self.epoch = -1
+        self.k_next = 0
+        self._epoch_open = False  # the next count read fixes the epoch's first sample number
+        self._pending: list[np.ndarray] = []  # frames read, not yet vouched for by INT_STATUS
+        self._ready: list[ImuBatch] = []
+        self._need_resync = False
+        self._stage = "reset"  # bring-up stage: reset, configure, start
+        self._wait_s = 0.0
+        self._check_running = False
+        self._failures = 0
+        self.next_time = 0.0
+        self._last_data = 0.0
+
+    def status(self) -> dict[str, object]:
+        return {
+            "state": self.state, "chip": self.chip, "rate_hz": self.fit.rate(),
+            "rate_sigma_hz": self.fit.rate_stderr,
+            "samples": self.samples, "lost": self.lost, "errors": self.errors,
+            "overflows": self.overflows, "resyncs": self.resyncs, "restarts": self.restarts,
+            "last_error": self.last_error,
+        }
+
+    def poll(self) -> list[ImuBatch]:
+        """One attempt if due; returns the newly confirmed samples (one batch per epoch)."""
+        if self.clock.now() < self.next_time:
+            return []
+        try:
+            self._poll()
+        except DeviceError as exc:
+            self._failed(str(exc))
+        else:
+            self._failures = 0
+            if self.up:
+                self.state = "ok"
+            wait, self._wait_s = self._wait_s or self.settings.poll_interval_s, 0.0
+            self.next_time = self.clock.now() + wait
+        ready, self._ready = self._ready, []
+        return ready
+
+    def _failed(self, message: str) -> None:
+        if not self.up:
+            self._stage = "reset"  # a bring-up that failed half-way starts again
+        self.errors += 1
+        self._failures += 1
+        self.last_error = message
+        self._check_running = True
+        if self._failures >= 2 or not self.up:
+            if self.state != "degraded":
+                log.warning("%s IMU degraded: %s", self.name, message)
+            self.state = "degraded"
+        backoff = min(BACKOFF_MIN_S * 2 ** (self._failures - 1), BACKOFF_MAX_S)
+        self.next_time = self.clock.now() + backoff
+
+    def _bring_up(self) -> bool:
+        """One stage of the bring-up; True once running. Waits are scheduled, not slept, so
+        the other sensor keeps being drained meanwhile (its FIFO holds only 85 ms)."""
+        if self._stage == "reset":
+            self.chip = self.driver.probe()
+            self.driver.reset()
+            self._stage, self._wait_s = "configure", reg.RESET_S
+        elif self._stage == "configure":
+            self.driver.configure()
+            self._stage, self._wait_s = "start", reg.GYRO_STARTUP_S
+        else:
+            self.driver.reset_fifo()  # drop the samples of the gyro's start-up
+            self._stage, self.up = "reset", True
+            self._pending.clear()
+            self._new_epoch()
+        return self.up
+
+    @property
+    def lost(self) -> int:
+        """Samples the sensor took between the first and the last delivered, not delivered.
+
+        A gap is first estimated when its epoch opens, from a clock fit that may still be young.
+        An error of d samples there shows up later as a step of d/rate between the phases the
+        fit finds for the epochs (the oscillator ran on). Summed over all gaps these steps
+        telescope: the total error is the phase of the last epoch against the first, in whole
+        periods, so short epochs with poorly known phases do not matter. (After a power cycle
+        the phase restarts and a gap is the nearest whole number of periods.)
+        """
+        tails = self.fit.tails
+        first, last = max(self._first_epoch, min(tails, default=0)), self._delivered_epoch
+        if first >= last or last not in tails or first not in tails:
+            return self._gaps + self.fit.dropped_fix
+        rate = self.fit.rate()
+        step = round((self.fit.t0(last, rate) - self.fit.t0(first, rate)) * rate)
+        return self._gaps + self.fit.dropped_fix + step
+
+    def _new_epoch(self) -> None:
+        self._pending.clear()
+        self._epoch_open = True
+        self.epoch += 1
+        self._last_data = self.clock.now()
+
+    def _resync(self) -> None:
+        self._pending.clear()
+        self._need_resync = True  # stays set if the reset fails, so the next poll retries it
+        self.driver.reset_fifo()
+        self._need_resync = False
+        self.resyncs += 1
+        self._new_epoch()
+
+    def _poll(self) -> None:
+        if not self.up and not self._bring_up():
+            return
+        if self._need_resync:
+            self._recover(overflow=self.driver.read_overflow())
+            return
+        stale = self.clock.now() - self._last_data > 5 * self.settings.poll_interval_s
+        if self._check_running or stale:  # a sensor reset behind our back is asleep, FIFO off
+            if not self.driver.is_running():
+                log.warning("%s IMU was reset; configuring it again", self.name)
+                self.restarts += 1
+                self.up = False
+                self._bring_up()
+                return
+            self._check_running = False
+        count = self.driver.fifo_count()
+        t_count = self.clock.now()  # after the read: see ClockFit.t0
+        frames = count // reg.FRAME_BYTES
+        if count % reg.FRAME_BYTES:  # part of a frame went missing: the FIFO is misaligned
+            self._recover(overflow=self.driver.read_overflow())
+            return
+        if self._epoch_open:
+            self._open_epoch(t_count, frames)
+        held = sum(len(p) for p in self._pending)
+        if frames or held:
+            self.fit.add(t_count, self.k_next + held + frames - 1, self.epoch)
+        if frames:
+            self._last_data = t_count
+        # frames read before a failed transfer stay pending: every transfer is whole frames
+        try:
+            self.driver.read_frames(frames, self._pending)
+        except DeviceError as exc:
+            # No ACK to the address: nothing moved. Any other failure may have popped part of
+            # the FIFO, maybe whole frames (which the count cannot reveal): start over aligned.
+            if exc.errno not in (errno.ENXIO, errno.EREMOTEIO):
+                self._need_resync = True
+            raise
+        if self.driver.read_overflow():
+            self._recover(overflow=True)
+        else:
+            self._deliver()
+
+    def _open_epoch(self, t_count: float, frames: int) -> None:
+        if not self.samples or not self.fit.points:  # losses count from the first delivery
+            first = self.k_next
+        else:  # the sensor kept sampling during the gap: place us on its clock
+            first = max(self.fit.newest_at(t_count) - frames + 1, self.k_next)
+        # counted once an epoch delivers (losses run up to the last delivered sample); epochs
+        # that never delivered add theirs to the next one's
+        self._open_gap += first - self.k_next
+        self.k_next = first
+        self._epoch_open = False
+
+    def _recover(self, overflow: bool) -> None:
+        """Deliver what the status read vouches for, then restart the FIFO aligned."""
+        if overflow:
+            self.overflows += 1
+        else:
+            self._deliver()
+        self._resync()
+
+    def _deliver(self) -> None:
+        if not self._pending:
+            return
+        self._gaps += self._open_gap
+        self._open_gap = 0
+        if not self.samples:
+            self._first_epoch = self.epoch
+        self._delivered_epoch = self.epoch
+        raw = np.concatenate(self._pending)
+        self._pending.clear()
+        k = np.arange(self.k_next, self.k_next + len(raw), dtype=np.int64)
+        self.k_next += len(raw)
+        self.samples += len(raw)
+        accel, gyro = reg.to_si(raw, self.settings)
+        t = self.fit.times(k, self.epoch)
+        self._ready.append(ImuBatch(self.name, k, self.epoch, t, accel, gyro - self.gyro_bias, raw))
+
+
+def asyncio_sink(
+    loop: asyncio.AbstractEventLoop, queue: asyncio.Queue[ImuBatch]
+) -> Callable[[ImuBatch], None]:
+    """A callback that hands batches from the reader thread to an asyncio queue."""
+
+    def sink(batch: ImuBatch) -> None:
+        loop.call_soon_threadsafe(queue.put_nowait, batch)
+
+    return sink
+
+
+class ImuReader:
+    """Polls its sensors in turn (one bus: transfers are serial anyway), in a thread or inline."""
+
+    def __init__(
+        self,
+        sensors: list[SensorReader],
+        clock: Clock,
+        on_batch: Callable[[ImuBatch], None] | None = None,
+    ) -> None:
+        self.sensors, self.clock, self.on_batch = sensors, clock, on_batch
+        self._stop = threading.Event()
+        self._lock = threading.Lock()  # status() may come from another thread than the polls
+        self._thread: threading.Thread | None = None
+
+    def step(self) -> list[ImuBatch]:
+        """Poll every sensor that is due; never raises for device trouble."""
+        out = []
+        for sensor in self.sensors:
+            try:
+                with self._lock:
+                    batches = sensor.poll()
+            except Exception as exc:  # a bug must not kill the reader: record it, back off
+                log.exception("%s IMU reader error", sensor.name)
+                sensor._failed(f"internal error: {type(exc).__name__}: {exc}")
+                continue
+            out.extend(batches)
+            if self.on_batch is not None:
+                for batch in batches:
+                    self.on_batch(batch)
+        return out
+
+    def _wait(self) -> None:
+        due = min(s.next_time for s in self.sensors)
+        self.clock.sleep(max(due - self.clock.now(), 0.0005))
+
+    def run_for(self, seconds: float) -> list[ImuBatch]:
+        """Run inline until `seconds` of clock time have passed (simulated or real)."""
+        end = self.clock.now() + seconds
+        out: list[ImuBatch] = []
+        while self.clock.now() < end:
+            out.extend(self.step())
+            self._wait()
+        return out
+
+    def start(self) -> None:
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="imu-reader", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.step()
+            self._wait()
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            self._thread = None
+
+    def status(self) -> dict[str, dict[str, object]]:
+        """Per sensor: state (starting/ok/degraded), chip, fitted rate, counters, last error."""
+        with self._lock:
+            return {s.name: s.status() for s in self.sensors}
+
+
+def make_reader(
+    bus: reg.SMBusLike,
+    settings: ImuSettings,
+    clock: Clock | None = None,
+    on_batch: Callable[[ImuBatch], None] | None = None,
+) -> ImuReader:
+    """Both sensors' reader, with the calibration file applied if there is one (at start).
+
+    No file: a warning, and the raw gyro. A damaged file: DataFileError (the caller decides
+    whether that stops the daemon or only the IMU part).
+    """
+    from tvsd.hw import imu_calibration
+
+    clock = clock or MonotonicClock()
+    calib = imu_calibration.load_or_none(settings.calibration_file)
+    if calib is None:
+        log.warning("no IMU calibration at %s: gyro bias not removed", settings.calibration_file)
+    readers = [
+        SensorReader(
+            Mpu6050(bus, name, settings, clock.sleep),
+            clock,
+            None if calib is None or name not in calib else calib[name].gyro_bias_rad_s,
+        )
+        for name in ("pl", "sa")
+    ]
+    return ImuReader(readers, clock, on_batch)

@@ -1,0 +1,6 @@
+"""The MCU link: protocol spec, framing, clock sync, the asyncio link and the stepper axes.
+
+One module per concern: ``spec`` (protocol.yaml), ``framing`` (bytes <-> frames), ``messages``
+(typed MCU -> host messages), ``clock`` (MCU ticks -> host time), ``link`` (McuLink on a serial
+port) and ``steppers`` (φ and γ axes in degrees).
+"""

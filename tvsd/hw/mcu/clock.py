@@ -1,0 +1,122 @@
+"""MCU clock → host clock: robust linear fit over heartbeat round trips.
+
+Each heartbeat gives (host send time, host receive time, MCU ticks when the MCU answered). The
+MCU event lies somewhere inside the round trip; the midpoint is off by half the difference of the
+two one-way delays, so a sample is only as good as its round trip is short. Samples whose RTT
+exceeds the window's smallest RTT by more than ``rtt_margin_s`` are discarded (USB scheduling,
+a busy host), which bounds each kept sample's error by (margin + jitter of the best one) / 2. A
+straight line host = a + b·ticks over a sliding window then absorbs the crystal's drift (±100s of
+ppm, changing slowly with temperature).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from tvsd.errors import ConfigError
+
+
+def unwrap_nearest(value: int, bits: int, reference: int) -> int:
+    """The integer congruent to ``value`` modulo 2**bits that lies nearest ``reference``."""
+    mod = 1 << bits
+    half = mod >> 1
+    return reference + ((value - reference + half) % mod) - half
+
+
+@dataclass(frozen=True)
+class ClockSettings:
+    window: int = 256  # round trips kept: at a 20 ms heartbeat, about 5 s
+    rtt_margin_s: float = 200e-6  # keep samples with RTT <= min RTT of the window + this
+    min_samples: int = 8  # before this, map with the nominal clock and the best sample
+    outlier_sigma: float = 4.0  # second pass: drop residuals beyond this many robust sigmas
+
+    def __post_init__(self) -> None:
+        if self.window < 2 or not 2 <= self.min_samples <= self.window:
+            raise ConfigError(
+                f"clock sync: need 2 <= min_samples ({self.min_samples}) <= window ({self.window})"
+            )
+        if not self.rtt_margin_s > 0 or not self.outlier_sigma > 0:
+            raise ConfigError("clock sync: rtt_margin_s and outlier_sigma must be > 0")
+
+
+@dataclass(frozen=True)
+class ClockFit:
+    offset_s: float  # host time (s) at MCU tick 0
+    seconds_per_tick: float
+    drift_ppm: float  # how fast the MCU clock runs against its nominal frequency
+    residual_us: float  # RMS residual of the samples used
+    used: int  # samples used / held
+    held: int
+
+
+class ClockSync:
+    """Map unwrapped MCU ticks to host time (the clock of ``time.monotonic``)."""
+
+    def __init__(self, clock_hz: float, settings: ClockSettings | None = None) -> None:
+        if clock_hz <= 0:
+            raise ValueError(f"clock_hz must be positive, got {clock_hz}")
+        self.clock_hz = float(clock_hz)
+        self.settings = settings or ClockSettings()
+        self._samples: deque[tuple[int, float, float]] = deque(maxlen=self.settings.window)
+        self.fit_: ClockFit | None = None
+        # to_host() runs per event: keep its coefficients as plain floats
+        self._x_ref = 0
+        self._y_ref = 0.0
+        self._b = 1.0 / self.clock_hz
+
+    @property
+    def ready(self) -> bool:
+        return self.fit_ is not None and self.fit_.used >= self.settings.min_samples
+
+    def add(self, host_send: float, host_recv: float, mcu_ticks: int) -> None:
+        """One heartbeat round trip: host times in seconds, MCU ticks unwrapped to 64 bits."""
+        if host_recv < host_send:
+            raise ValueError("a round trip cannot end before it starts")
+        self._samples.append((mcu_ticks, 0.5 * (host_send + host_recv), host_recv - host_send))
+        self._refit()
+
+    def _refit(self) -> None:
+        s = self.settings
+        ticks = np.array([t for t, _, _ in self._samples], dtype=np.int64)
+        mid = np.array([m for _, m, _ in self._samples])
+        rtt = np.array([r for _, _, r in self._samples])
+        keep = rtt <= rtt.min() + s.rtt_margin_s
+        # Centre both axes: ticks reach 1e12 and monotonic seconds 1e6; float64 keeps µs then.
+        x_ref = int(ticks[keep][-1])
+        y_ref = float(mid[keep][-1])
+        x = (ticks - x_ref).astype(np.float64)
+        y = mid - y_ref
+        b = 1.0 / self.clock_hz
+        a = 0.0
+        for _ in range(2):
+            if keep.sum() >= 2 and np.ptp(x[keep]) > 0:
+                b, a = np.polyfit(x[keep], y[keep], 1)
+            else:  # one sample: nominal rate through it
+                a = float(np.mean(y[keep] - b * x[keep]))
+            res = y - (a + b * x)
+            mad = float(np.median(np.abs(res[keep])))
+            # robust sigma, floored at the error a kept sample may have by construction
+            limit = max(s.outlier_sigma * 1.4826 * mad, s.rtt_margin_s / 2)
+            new_keep = keep & (np.abs(res) <= limit)
+            if new_keep.sum() == keep.sum() or new_keep.sum() < 2:
+                break
+            keep = new_keep
+        res = y[keep] - (a + b * x[keep])
+        self._x_ref, self._y_ref, self._b = x_ref, y_ref + float(a), float(b)
+        self.fit_ = ClockFit(
+            offset_s=self._y_ref - self._b * x_ref,
+            seconds_per_tick=self._b,
+            drift_ppm=(1.0 / (self._b * self.clock_hz) - 1.0) * 1e6,
+            residual_us=float(np.sqrt(np.mean(res**2))) * 1e6,
+            used=int(keep.sum()),
+            held=len(self._samples),
+        )
+
+    def to_host(self, mcu_ticks: int) -> float:
+        """Host time (s) of an MCU tick count (unwrapped). Before any sample: NaN."""
+        if self.fit_ is None:
+            return float("nan")
+        return self._y_ref + self._b * (mcu_ticks - self._x_ref)

@@ -1,0 +1,147 @@
+"""Typed MCU -> host messages, held to protocol.yaml's field lists when the link starts.
+
+The payload layouts come from the spec; the classes here give them types for the rest of tvsd.
+``check_against(spec)`` refuses a spec whose fields no longer match these classes, so a protocol
+change the host code has not followed fails at start-up with the message's name, not later with
+a garbled value.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+from tvsd.errors import ProtocolError
+from tvsd.hw.mcu.spec import ProtocolSpec
+
+
+@dataclass(frozen=True, slots=True)
+class Identify:
+    proto_version: int
+    clock_hz: int
+    table_hash: int
+    board: int
+
+
+@dataclass(frozen=True, slots=True)
+class HeartbeatAck:
+    host_us: int
+    mcu_ticks: int
+
+
+@dataclass(frozen=True, slots=True)
+class State:
+    ticks16: int
+    encoder16: int
+
+
+@dataclass(frozen=True, slots=True)
+class Pulse:
+    channel: int
+    event_seq: int
+    mcu_ticks: int
+
+
+@dataclass(frozen=True, slots=True)
+class Fault:
+    code: int
+    detail: int
+
+
+@dataclass(frozen=True, slots=True)
+class StepperState:
+    axis: int
+    position: int
+    flags: int
+
+    MOVING = 1
+    HOMED = 2
+    AT_LIMIT = 4
+
+    @property
+    def moving(self) -> bool:
+        return bool(self.flags & self.MOVING)
+
+    @property
+    def homed(self) -> bool:
+        return bool(self.flags & self.HOMED)
+
+    @property
+    def at_limit(self) -> bool:
+        return bool(self.flags & self.AT_LIMIT)
+
+
+@dataclass(frozen=True, slots=True)
+class Ack:
+    seq: int
+    status: int
+
+
+@dataclass(frozen=True, slots=True)
+class McuStats:
+    rx_frames: int
+    crc_errors: int
+    resyncs: int
+    tx_dropped: int
+
+
+# ack.status meanings: firmware/core/core_config.h (ACK_*). protocol.yaml lists fault codes but
+# not these, so they are mirrored here by hand.
+ACK_STATUS: dict[int, str] = {
+    0: "ok",
+    1: "a field is out of range",
+    2: "outputs are refused until a heartbeat arms the watchdog",
+    3: "the stepper axis is already moving",
+}
+
+
+def ack_meaning(status: int) -> str:
+    return ACK_STATUS.get(status, f"error code {status}")
+
+
+Message = Identify | HeartbeatAck | State | Pulse | Fault | StepperState | Ack | McuStats
+
+# spec name -> class
+M2H_CLASSES: dict[str, type] = {
+    "identify": Identify,
+    "heartbeat_ack": HeartbeatAck,
+    "state": State,
+    "pulse": Pulse,
+    "fault": Fault,
+    "stepper_state": StepperState,
+    "ack": Ack,
+    "stats": McuStats,
+}
+
+# host -> MCU messages the link sends, with the field order it passes
+H2M_FIELDS: dict[str, tuple[str, ...]] = {
+    "identify_req": (),
+    "heartbeat": ("host_us",),
+    "pwm_set": ("duty",),
+    "stepper_move": ("axis", "steps", "rate_sps", "accel_sps2"),
+    "stepper_home": ("axis",),
+    "laser_set": ("on",),
+    "config_set": ("watchdog_ms", "state_div", "max_on_ms"),
+    "stats_req": (),
+}
+
+
+def check_against(spec: ProtocolSpec) -> dict[int, type]:
+    """id -> class for every m2h message; ProtocolError naming the first mismatch."""
+    out: dict[int, type] = {}
+    for name, cls in M2H_CLASSES.items():
+        m = spec.by_name(name)
+        mine = tuple(f.name for f in fields(cls))
+        if m.dir != "m2h" or m.field_names != mine:
+            raise ProtocolError(
+                f"{spec.path}: message {name} is {m.dir} {list(m.field_names)}, but this tvsd "
+                f"reads it as m2h {list(mine)}: update tvsd/hw/mcu/messages.py with the protocol"
+            )
+        out[m.id] = cls
+    for name, names in H2M_FIELDS.items():
+        m = spec.by_name(name)
+        if m.dir != "h2m" or m.field_names != names:
+            raise ProtocolError(
+                f"{spec.path}: message {name} is {m.dir} {list(m.field_names)}, but this tvsd "
+                f"sends h2m {list(names)}: update tvsd/hw/mcu/messages.py with the protocol"
+            )
+    return out

@@ -1,0 +1,217 @@
+"""Motion that the simulated MPU6050s feel: the link between the SIL plant and the IMU twin.
+
+A MotionSource gives, at sensor sample times, the angular rate (rad/s) and specific force (m/s^2,
+what an accelerometer reads: gravity up plus linear acceleration) in the sensor's frame. Calls come
+with increasing times (the twin asks for each new FIFO sample once), so sources may keep state.
+
+Two sources: SyntheticMotion (the effects as parameters, usable now) and ArrayMotion (built from
+the SIL plant's time series t, alpha_sa, omega_shaft, gamma).
+
+Modelling choices (see MODEL-NOTES.md §4):
+- the vibration is an angular acceleration about the SA axis (sensor X): the paper's Δv;
+- its random part is Ornstein–Uhlenbeck (std σ, correlation time τ, exact discretization, so the
+  result does not depend on the step);
+- the housing sits on compliant mounts, so the angular rate is the integral of α with a slow leak
+  (τ_leak = 1 s): the rate stays bounded, and dω/dt = α above ~0.2 Hz;
+- the accelerometer sees gravity tilted by γ about X, plus α·r along Y and Z (lever arm r);
+- the PL sensor feels the same disturbance, attenuated by the frame (coupling 0.3, an assumption).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Protocol
+
+import numpy as np
+from scipy.signal import lfilter
+
+from tvsd.errors import UsageError
+
+GRAVITY = 9.80665
+
+
+@dataclass(frozen=True)
+class MotionSample:
+    gyro: np.ndarray  # (n, 3) rad/s, sensor frame
+    accel: np.ndarray  # (n, 3) m/s^2 specific force, sensor frame
+
+
+class MotionSource(Protocol):
+    def sample(self, t: np.ndarray) -> MotionSample:
+        """Motion at times `t` (s, increasing, and after the times of any earlier call)."""
+        ...
+
+
+def _specific_force(alpha: np.ndarray, gamma: float, lever_m: float) -> np.ndarray:
+    """Gravity tilted by γ about X (sensor Z up at γ = 0), plus tangential α·r on Y and Z."""
+    out = np.empty((alpha.size, 3))
+    out[:, 0] = 0.0
+    out[:, 1] = GRAVITY * np.sin(gamma) + lever_m * alpha
+    out[:, 2] = GRAVITY * np.cos(gamma) + lever_m * alpha
+    return out
+
+
+def _axis_vector(values: np.ndarray, axis: int) -> np.ndarray:
+    out = np.zeros((values.size, 3))
+    out[:, axis] = values
+    return out
+
+
+@dataclass(frozen=True)
+class SyntheticParams:
+    rps: float = 25.0  # shaft rotation rate, rev/s
+    imbalance_rad_s2: float = 2.0  # once-per-revolution line amplitude (0 = effect off)
+    imbalance_phase: float = 0.0
+    vibration_std_rad_s2: float = 0.3  # OU random vibration, std
+    vibration_tau_s: float = 0.005  # OU correlation time
+    resonance_hz: float = 0.0  # structural mode (0 = off)
+    resonance_rad_s2: float = 0.0
+    gamma_rad: float = 0.0  # rod tilt: the gravity direction
+    lever_m: float = 0.01
+    axis: int = 0  # the SA axis in the sensor frame
+    leak_tau_s: float = 1.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.rps < 0 or self.vibration_std_rad_s2 < 0 or self.imbalance_rad_s2 < 0:
+            raise UsageError("motion: rps, imbalance and vibration std must be >= 0")
+        if self.vibration_tau_s <= 0 or self.leak_tau_s <= 0:
+            raise UsageError("motion: vibration_tau_s and leak_tau_s must be > 0")
+        if self.resonance_hz < 0 or self.axis not in (0, 1, 2):
+            raise UsageError("motion: resonance_hz must be >= 0 and axis 0, 1 or 2")
+
+
+class SyntheticMotion:
+    """Imbalance line + OU vibration + optional resonance line, as a stateful stream."""
+
+    def __init__(self, params: SyntheticParams) -> None:
+        self.params = params
+        self._rng = np.random.default_rng(params.seed)
+        self._t_last: float | None = None
+        self._alpha_ou = 0.0
+        self._omega_ou = 0.0
+
+    @property
+    def rotation_hz(self) -> float:
+        return self.params.rps
+
+    def _lines(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sine lines in α and their zero-mean integrals in ω (exact)."""
+        p = self.params
+        alpha = np.zeros_like(t)
+        omega = np.zeros_like(t)
+        for f, amp, phase in (
+            (p.rps, p.imbalance_rad_s2, p.imbalance_phase),
+            (p.resonance_hz, p.resonance_rad_s2, 0.0),
+        ):
+            if f > 0 and amp > 0:
+                arg = 2 * np.pi * f * t + phase
+                alpha += amp * np.sin(arg)
+                omega -= amp / (2 * np.pi * f) * np.cos(arg)
+        return alpha, omega
+
+    def _ou(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = self.params
+        if p.vibration_std_rad_s2 == 0:
+            return np.zeros_like(t), np.zeros_like(t)
+        t_prev = t[0] if self._t_last is None else self._t_last
+        dt = np.diff(np.concatenate([[t_prev], t]))
+        a = np.exp(-dt / p.vibration_tau_s)
+        noise = self._rng.standard_normal(t.size) * p.vibration_std_rad_s2 * np.sqrt(1 - a * a)
+        c = np.exp(-dt / p.leak_tau_s)
+        if np.ptp(dt) < 1e-12:  # uniform step: vectorized recursions
+            alpha = lfilter([1.0], [1.0, -a[0]], noise, zi=[a[0] * self._alpha_ou])[0]
+            prev = np.concatenate([[self._alpha_ou], alpha[:-1]])
+            u = p.leak_tau_s * (1 - c[0]) * 0.5 * (prev + alpha)
+            omega = lfilter([1.0], [1.0, -c[0]], u, zi=[c[0] * self._omega_ou])[0]
+        else:
+            alpha, omega = np.empty_like(t), np.empty_like(t)
+            al, om = self._alpha_ou, self._omega_ou
+            for i in range(t.size):
+                new = a[i] * al + noise[i]
+                om = c[i] * om + p.leak_tau_s * (1 - c[i]) * 0.5 * (al + new)
+                al = new
+                alpha[i], omega[i] = al, om
+        self._alpha_ou, self._omega_ou = float(alpha[-1]), float(omega[-1])
+        return alpha, omega
+
+    def sample(self, t: np.ndarray) -> MotionSample:
+        t = np.asarray(t, dtype=np.float64)
+        if t.size == 0:
+            return MotionSample(np.zeros((0, 3)), np.zeros((0, 3)))
+        if self._t_last is not None and t[0] < self._t_last:
+            raise ValueError(f"motion sampled backwards in time ({t[0]} < {self._t_last})")
+        alpha_l, omega_l = self._lines(t)
+        alpha_n, omega_n = self._ou(t)
+        self._t_last = float(t[-1])
+        alpha = alpha_l + alpha_n
+        p = self.params
+        return MotionSample(
+            _axis_vector(omega_l + omega_n, p.axis), _specific_force(alpha, p.gamma_rad, p.lever_m)
+        )
+
+
+def synthetic_pair(params: SyntheticParams, pl_coupling: float = 0.3) -> dict[str, SyntheticMotion]:
+    """Sources for both sensors: SA as given, PL with the disturbance scaled by `pl_coupling`."""
+    pl = replace(
+        params,
+        imbalance_rad_s2=params.imbalance_rad_s2 * pl_coupling,
+        vibration_std_rad_s2=params.vibration_std_rad_s2 * pl_coupling,
+        resonance_rad_s2=params.resonance_rad_s2 * pl_coupling,
+        seed=params.seed + 1,
+    )
+    return {"pl": SyntheticMotion(pl), "sa": SyntheticMotion(params)}
+
+
+class ArrayMotion:
+    """A MotionSource from the SIL plant's series: α about the SA axis at times t_s.
+
+    `omega_shaft` (rad/s) is kept to report the rotation rate; the plant's α already holds its
+    effect on the housing. Times outside the series are an error, not an extrapolation.
+    """
+
+    def __init__(
+        self,
+        t_s: np.ndarray,
+        alpha_sa: np.ndarray,
+        gamma_rad: float = 0.0,
+        omega_shaft: np.ndarray | None = None,
+        axis: int = 0,
+        lever_m: float = 0.01,
+        leak_tau_s: float = 1.0,
+    ) -> None:
+        t_s = np.asarray(t_s, dtype=np.float64)
+        alpha_sa = np.asarray(alpha_sa, dtype=np.float64)
+        if t_s.ndim != 1 or t_s.shape != alpha_sa.shape or t_s.size < 2:
+            raise ValueError("ArrayMotion: t and alpha_sa must be 1-D, same length, >= 2 points")
+        dt = np.diff(t_s)
+        if np.any(dt <= 0):
+            raise ValueError("ArrayMotion: t must be strictly increasing")
+        omega = np.empty_like(alpha_sa)  # leaky trapezoid integration, as SyntheticMotion
+        omega[0] = 0.0
+        c = np.exp(-dt / leak_tau_s)
+        incr = leak_tau_s * (1 - c) * 0.5 * (alpha_sa[1:] + alpha_sa[:-1])
+        for i in range(dt.size):
+            omega[i + 1] = c[i] * omega[i] + incr[i]
+        self.t_s, self.alpha_sa, self.omega = t_s, alpha_sa, omega
+        self.gamma_rad, self.axis, self.lever_m = gamma_rad, axis, lever_m
+        self.omega_shaft = None if omega_shaft is None else np.asarray(omega_shaft, dtype=float)
+
+    @property
+    def rotation_hz(self) -> float:
+        if self.omega_shaft is None:
+            return 0.0
+        return float(np.mean(self.omega_shaft) / (2 * np.pi))
+
+    def sample(self, t: np.ndarray) -> MotionSample:
+        t = np.asarray(t, dtype=np.float64)
+        if t.size and (t[0] < self.t_s[0] or t[-1] > self.t_s[-1]):
+            raise ValueError(
+                f"ArrayMotion covers {self.t_s[0]:g}..{self.t_s[-1]:g} s, asked "
+                f"{t[0]:g}..{t[-1]:g} s"
+            )
+        alpha = np.interp(t, self.t_s, self.alpha_sa)
+        omega = np.interp(t, self.t_s, self.omega)
+        return MotionSample(
+            _axis_vector(omega, self.axis), _specific_force(alpha, self.gamma_rad, self.lever_m)
+        )
