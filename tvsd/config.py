@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from tvsd.errors import ConfigError, UsageError
+from tvsd.scan.settings import ScanSettings
 from tvsd.schema import Where, build, load_yaml, option
 
 
@@ -125,6 +126,7 @@ class Config:
     sil_profile: str | None = option(None, doc="SIL profile file, relative to this file")
     sil: SilConfig | None = option(None, doc="SIL profile inline (instead of sil_profile)")
     reproduction: Reproduction | None = option(None, doc="paper figures to reproduce")
+    scan: ScanSettings = option(ScanSettings(), doc="scan pipeline (baseline from geometry)")
 
     @property
     def sil_or_default(self) -> SilConfig:
@@ -156,6 +158,13 @@ def load_config(path: str | Path | None = None, *, params: str | None = None) ->
     if cfg.sil is not None and cfg.sil_profile is not None:
         line = data.key_lines.get("sil", data.line)
         raise ConfigError(f"{path}:{line}: sil: give either 'sil' or 'sil_profile', not both")
+    scan_keys = getattr(data.get("scan"), "key_lines", {})
+    if "baseline_m" in scan_keys:
+        raise ConfigError(
+            f"{path}:{scan_keys['baseline_m']}: scan.baseline_m: set geometry.baseline_m instead "
+            "(one baseline for the whole scanner)"
+        )
+    cfg = dataclasses.replace(cfg, scan=dataclasses.replace(cfg.scan, baseline_m=cfg.geometry.baseline_m))
     if cfg.sil_profile is not None:
         profile = path.parent / cfg.sil_profile
         if not profile.is_file():

@@ -21,9 +21,30 @@ def _sim() -> dict[str, Any]:
     return out
 
 
+def _scan() -> dict[str, Any]:
+    from tvsd.scan import bench
+
+    return {**bench.bench_triangulation(), **bench.bench_pipeline(), **bench.bench_latency()}
+
+
+def _imu() -> dict[str, Any]:
+    from tvsd.cli.imu import bench_capture
+
+    return {f"imu_{k}": v for k, v in bench_capture(5.0).items()}
+
+
+def _mcu() -> dict[str, Any]:
+    from tvsd.hw.mcu.framing import bench_decode
+
+    return {f"mcu_decode_{k}": v for k, v in bench_decode().items()}
+
+
 # name -> function returning a flat dict of figures; one line per benchmark group.
 BENCHES: dict[str, Callable[[], dict[str, Any]]] = {
     "sim": _sim,
+    "scan": _scan,
+    "imu": _imu,
+    "mcu": _mcu,
 }
 
 

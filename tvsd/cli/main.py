@@ -20,6 +20,9 @@ from tvsd.errors import EXIT_INTERNAL, EXIT_USAGE, TvsdError
 COMMANDS: dict[str, str] = {
     "sim": "tvsd.cli.sim",
     "bench": "tvsd.cli.bench",
+    "analyze": "tvsd.cli.analyze",
+    "imu": "tvsd.cli.imu",
+    "mcu": "tvsd.cli.mcu",
 }
 
 

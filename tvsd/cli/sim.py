@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 from pathlib import Path
 
@@ -75,8 +76,18 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     rec.add_argument("--seconds", type=float, default=60.0, help="length (default 60 s)")
     rec.add_argument("--effect", action="append", default=None, metavar="NAME:k=v,...", help=eff_help)
     rec.add_argument("--seed", type=int, default=1)
+    rec.add_argument(
+        "--sigma-v",
+        type=float,
+        metavar="S",
+        help="vibration level σv of the SIL profile's model (paper: 0.0838, 0.3381, 0.8069)",
+    )
     rec.add_argument("--json", action="store_true")
     rec.set_defaults(func=_record)
+
+    from tvsd.cli import sim_scan
+
+    sim_scan.register(simsub)
 
 
 def _gains(text: str) -> Gains:
@@ -202,6 +213,12 @@ def _record(args: argparse.Namespace) -> int:
     cfg = _config(args)
     seconds = _seconds(args.seconds, 1.0, 3600.0)
     effects = _effects(args) or ()
+    if args.sigma_v is not None:
+        if not 0 <= args.sigma_v <= 100 or not math.isfinite(args.sigma_v):
+            raise UsageError(f"--sigma-v {args.sigma_v:g} is outside [0, 100]")
+        sil = cfg.sil_or_default
+        vib = dataclasses.replace(sil.vibration, sigma_v=args.sigma_v)
+        cfg = dataclasses.replace(cfg, sil=dataclasses.replace(sil, vibration=vib))
     res = record(cfg, args.out, args.profile, seconds, effects, args.seed, args.rps, args.params)
     if args.json:
         print_json(

@@ -1,0 +1,115 @@
+"""The scan pipeline fed as data arrives, as the daemon's point stream needs it.
+
+Pulses (arrival order) and IMU/drive samples (time order) come in separately. A point is computed
+once its data are there: the zero pulses its estimator needs (centred: the next one, ≤ one
+revolution later; causal: none after it) and, with compensation, IMU samples up to the last of
+those pulses (the FIFO delivers them within a few ms). Each computation runs the batch pipeline on
+a short buffer — the last `KEEP_ZERO` zero pulses and the samples the σ window needs — and returns
+the points not sent before, as records with the fields of tvsd.scan.points.FIELDS.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from tvsd.scan.compensation import KnownAccel
+from tvsd.scan.pipeline import process
+from tvsd.scan.pulses import OPTICAL, ZERO, clean
+from tvsd.scan.settings import ScanSettings
+
+KEEP_ZERO = 12  # ≥ the running median's 9 intervals + the estimator's 3 knots
+
+
+class PointStream:
+    def __init__(
+        self,
+        settings: ScanSettings,
+        phi: float,
+        gamma: float,
+        tick_s: float,
+        compensate: bool = True,
+        damping: float = 0.0,
+    ) -> None:
+        """`damping`: λ of the drive model (tvsd.scan.compensation.DriveModel)."""
+        self.settings, self.phi, self.gamma, self.tick_s = settings, phi, gamma, tick_s
+        self.damping = damping
+        self.compensate = compensate
+        self._pulses: deque[tuple[int, int]] = deque()
+        self._zeros = 0
+        self._imu: deque[float] = deque()
+        self._drive: deque[float] = deque()
+        self._imu_t0 = np.nan  # MCU time of the oldest kept sample's start
+        self._last_sent = -np.inf
+        self._pending: deque[float] = deque()  # optical pulse times not yet turned into points
+        self._data_until = -np.inf  # pulses are complete up to here (the latest zero pulse, centred)
+        self._keep = int((settings.vibration_window_s + 0.5) * settings.imu_rate_hz)
+
+    @property
+    def _imu_end(self) -> float:
+        return self._imu_t0 + len(self._imu) / self.settings.imu_rate_hz if self._imu else -np.inf
+
+    def add_samples(self, t0: float, imu: np.ndarray, drive: np.ndarray) -> list[dict[str, Any]]:
+        """IMU and drive samples on the IMU grid; t0 = start of the first, in MCU time."""
+        if not self._imu:
+            self._imu_t0 = t0
+        self._imu.extend(imu.tolist())
+        self._drive.extend(drive.tolist())
+        excess = max(len(self._imu) - self._keep, 0)
+        for _ in range(excess):
+            self._imu.popleft()
+            self._drive.popleft()
+        self._imu_t0 += excess / self.settings.imu_rate_hz
+        return self._emit()
+
+    def add_pulse(self, kind: int, ticks: int) -> list[dict[str, Any]]:
+        """One pulse in arrival order; returns the points that are now complete."""
+        t = ticks * self.tick_s
+        self._pulses.append((kind, ticks))
+        if kind == ZERO:
+            self._zeros += 1
+            while self._zeros > KEEP_ZERO:
+                old_kind, _ = self._pulses.popleft()
+                self._zeros -= old_kind == ZERO
+            if self.settings.estimator == "centred":
+                self._data_until = max(self._data_until, t)
+        elif kind == OPTICAL and t > self._last_sent:
+            self._pending.append(t)
+            if self.settings.estimator == "causal":
+                self._data_until = max(self._data_until, t)
+        return self._emit()
+
+    def _ready(self) -> bool:
+        if not self._pending or self._pending[0] > self._data_until or self._zeros < 3:
+            return False
+        # Compensation needs the IMU past every pulse the estimate uses.
+        return not (self.compensate and self._imu_end <= self._data_until)
+
+    def _emit(self) -> list[dict[str, Any]]:
+        if not self._ready():
+            return []
+        kinds = np.fromiter((k for k, _ in self._pulses), dtype=np.int8, count=len(self._pulses))
+        ticks = np.fromiter((t for _, t in self._pulses), dtype=np.int64, count=len(self._pulses))
+        known = None
+        if self._imu:
+            rate = self.settings.imu_rate_hz
+            known = KnownAccel.build(
+                self._imu_t0, 1.0 / rate, np.asarray(self._imu), np.asarray(self._drive), self.damping
+            )
+        res = process(
+            clean(kinds, ticks, self.tick_s),
+            self.phi,
+            self.gamma,
+            self.settings,
+            known,
+            compensate=self.compensate and known is not None,
+        )
+        new = res.cloud.select(res.cloud.t > self._last_sent)
+        # What the data allowed is settled: points dropped now (anomalies, gaps) stay dropped.
+        while self._pending and self._pending[0] <= self._data_until:
+            self._pending.popleft()
+        if len(new):
+            self._last_sent = float(new.t[-1])
+        return list(new.records())
