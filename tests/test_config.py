@@ -120,6 +120,11 @@ def test_arbitrary_text_never_raises_anything_but_config_error(tmp_path, text):
         (lambda d: d["control"].__setitem__("rate_hz", 1e7), "control.rate_hz: must be at most 100000"),
         (lambda d: d["drive"].__setitem__("u_max_v", True), "expected a number"),
         (lambda d: d.__setitem__("sil_profile", "missing.yaml"), "sil_profile: no such file"),
+        (
+            lambda d: d["imu"].__setitem__("gyro_fs_dps", 300),
+            "imu.gyro_fs_dps = 300: one of (250, 500, 1000, 2000)",
+        ),
+        (lambda d: d["imu"].__setitem__("sa_axis", "w"), "imu.sa_axis: expected one of x, y, z"),
     ],
 )
 def test_specific_errors_name_the_key_and_expectation(tmp_path, edit, needle):

@@ -39,12 +39,19 @@ def _mcu() -> dict[str, Any]:
     return {f"mcu_decode_{k}": v for k, v in bench_decode().items()}
 
 
+def _doctor() -> dict[str, Any]:
+    from tvsd.analysis.bench import bench_analyze
+
+    return bench_analyze()
+
+
 # name -> function returning a flat dict of figures; one line per benchmark group.
 BENCHES: dict[str, Callable[[], dict[str, Any]]] = {
     "sim": _sim,
     "scan": _scan,
     "imu": _imu,
     "mcu": _mcu,
+    "doctor": _doctor,
 }
 
 

@@ -231,10 +231,20 @@ def _plant_motion(args: argparse.Namespace, axis: int) -> MotionSource:
     return ArrayMotion(t, trace.disturbance[keep], np.radians(args.gamma_deg), trace.omega[keep], axis=axis)
 
 
+def _settings(args: argparse.Namespace) -> ImuSettings:
+    """The config's imu: section (config/tvsd.yaml or --config), with --bus overriding the bus."""
+    from dataclasses import replace
+
+    from tvsd.config import load_config
+
+    settings: ImuSettings = (load_config(args.config) if args.config else load_config()).imu.settings()
+    return replace(settings, bus=args.bus) if args.bus is not None else settings
+
+
 def _setup(args: argparse.Namespace, at_rest: bool) -> tuple[ImuSettings, SMBusLike, Clock]:
     if not 0.5 <= args.seconds <= 3600:
         raise UsageError(f"--seconds {args.seconds:g}: use 0.5 .. 3600")
-    settings = ImuSettings(bus=args.bus) if args.bus is not None else ImuSettings()
+    settings = _settings(args)
     if args.sil:
         bus, clock, _ = _sil(args, settings, at_rest)
         return settings, bus, clock
@@ -397,6 +407,9 @@ def _common(p: argparse.ArgumentParser, seconds: float) -> None:
     p.add_argument("--seconds", type=float, default=seconds)
     p.add_argument("--json", action="store_true")
     p.add_argument("--bus", type=int, default=None, help="I2C bus number (default imu.bus)")
+    p.add_argument(
+        "--config", type=Path, help="scanner config with the imu: section (default config/tvsd.yaml)"
+    )
     p.add_argument("--realtime", action="store_true", help="with --sil: run at wall-clock pace")
     p.add_argument("--rps", type=float, default=25.0, help="--sil: rotation rate, rev/s")
     p.add_argument("--imbalance", type=float, default=2.0, help="--sil: line at rps, rad/s^2")

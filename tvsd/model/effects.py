@@ -9,8 +9,8 @@ E_* constants; an effect that is off holds its neutral value (amplitude 0, ratio
 
 What each effect does to the plant (paper eqs. 9–11):
 - imbalance   torque A·sin(φ+ψ) added to the shaft (once per revolution);
-- cogging     torque A·sin(N·φ) added to the shaft (N ≥ 2 per revolution);
-- resonance   torque A·sin(2π·f·t) added to the shaft: a line fixed in Hz, not locked to φ;
+- cogging     torque A·sin(N·φ + ψ) added to the shaft (N ≥ 2 per revolution; ψ optional, 0);
+- resonance   torque A·sin(2π·f·t + ψ) added to the shaft: a line fixed in Hz, not locked to φ;
 - saturation  applied voltage clipped to ±u_max;
 - deadzone    applied voltage u − u0·sgn(u) for |u| > u0, else 0 (the standard continuous dead zone);
 - delay       applied voltage = command delayed by delay_s (linear interpolation between steps);
@@ -39,7 +39,8 @@ E_DELAY = 8
 E_FRIC_RATIO = 9
 E_NOISE_TAU = 10
 E_DRIFT_PARAM, E_DRIFT_REL = 11, 12
-N_EFFECT_SLOTS = 13
+E_COG_PHASE, E_RES_PHASE = 13, 14
+N_EFFECT_SLOTS = 15
 
 # Parameters a drift can move; the index is what the kernel switches on.
 DRIFT_PARAMETERS = ("kv", "J", "R", "kM", "friction")
@@ -77,12 +78,20 @@ CATALOGUE: dict[str, EffectSpec] = {
         EffectSpec(
             "cogging",
             "torque A·sin(N·φ), N ≥ 2 times per revolution",
-            (Param("order", "", 2, 64, integer=True), Param("amplitude", "N·m", 0, 1.0)),
+            (
+                Param("order", "", 2, 64, integer=True),
+                Param("amplitude", "N·m", 0, 1.0),
+                Param("phase", "rad", -2 * math.pi, 2 * math.pi, 0.0),
+            ),
         ),
         EffectSpec(
             "resonance",
             "a structural mode: torque line at a fixed frequency",
-            (Param("frequency_hz", "Hz", 0.1, 2000.0), Param("amplitude", "N·m", 0, 1.0)),
+            (
+                Param("frequency_hz", "Hz", 0.1, 2000.0),
+                Param("amplitude", "N·m", 0, 1.0),
+                Param("phase", "rad", -2 * math.pi, 2 * math.pi, 0.0),
+            ),
         ),
         EffectSpec("saturation", "drive clips the voltage at ±u_max", (Param("u_max", "V", 0.01, 400.0),)),
         EffectSpec("deadzone", "drive outputs nothing for |u| < u0", (Param("u0", "V", 0.0, 50.0),)),
@@ -199,8 +208,10 @@ def pack(effects: Iterable[Effect]) -> np.ndarray:
             eff[E_IMB_AMP], eff[E_IMB_PHASE] = float(p["amplitude"]), float(p["phase"])
         elif e.name == "cogging":
             eff[E_COG_ORDER], eff[E_COG_AMP] = float(p["order"]), float(p["amplitude"])
+            eff[E_COG_PHASE] = float(p.get("phase", 0.0))
         elif e.name == "resonance":
             eff[E_RES_FREQ], eff[E_RES_AMP] = float(p["frequency_hz"]), float(p["amplitude"])
+            eff[E_RES_PHASE] = float(p.get("phase", 0.0))
         elif e.name == "saturation":
             eff[E_SAT_UMAX] = float(p["u_max"])
         elif e.name == "deadzone":

@@ -52,9 +52,9 @@ def _shaft_torque(phi: float, t: float, eff: np.ndarray) -> float:
     if eff[E.E_IMB_AMP] != 0.0:
         tau += eff[E.E_IMB_AMP] * math.sin(phi + eff[E.E_IMB_PHASE])
     if eff[E.E_COG_AMP] != 0.0:
-        tau += eff[E.E_COG_AMP] * math.sin(eff[E.E_COG_ORDER] * phi)
+        tau += eff[E.E_COG_AMP] * math.sin(eff[E.E_COG_ORDER] * phi + eff[E.E_COG_PHASE])
     if eff[E.E_RES_AMP] != 0.0:
-        tau += eff[E.E_RES_AMP] * math.sin(2.0 * math.pi * eff[E.E_RES_FREQ] * t)
+        tau += eff[E.E_RES_AMP] * math.sin(2.0 * math.pi * eff[E.E_RES_FREQ] * t + eff[E.E_RES_PHASE])
     return tau
 
 

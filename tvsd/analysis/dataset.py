@@ -1,0 +1,144 @@
+"""What the model doctor analyses: one drive recording, rotary or linear, in SI units.
+
+Sources: the recording CSV of DESIGN.md (SIL recordings, the daemon's exports) and the EMPS
+benchmark's .mat files (a linear axis: metres, newtons; Janot, Gautier & Brunot 2019).
+
+The doctor works on the mechanical equation with a known input gain:
+    J·ω̇ = b_u·u − b_ω·ω − friction(ω) + unknown torques
+For the scanning aperture's DC motor b_u = kM·ku/R and b_ω = kM·kb/R, taken from the config, and
+the current follows the command with the electrical time constant L/R = 0.12 ms: far below a
+sample, it acts as a delay of L/R (left out, a noise-free recording shows it as a 0.11 ms
+`delay`). For EMPS b_u = gτ (N/V), b_ω = 0, no lag.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from tvsd.config import Config
+from tvsd.errors import DataFileError
+from tvsd.recording import read as read_recording
+
+
+@dataclass(frozen=True)
+class Units:
+    position: str
+    speed: str
+    accel: str
+    effort: str  # torque or force
+    inertia: str
+    axis: str  # "rotary" or "linear"
+
+
+ROTARY = Units("rad", "rad/s", "rad/s²", "N·m", "kg·m²", "rotary")
+LINEAR = Units("m", "m/s", "m/s²", "N", "kg", "linear")
+
+
+@dataclass(frozen=True)
+class Dataset:
+    name: str
+    t: np.ndarray
+    u: np.ndarray  # command, V
+    position: np.ndarray
+    speed: np.ndarray | None  # measured speed, or None (then differentiated from position)
+    sample_rate_hz: float
+    b_u: float  # effort per volt
+    b_omega: float  # back-EMF damping, effort per unit speed
+    units: Units
+    offset_term: bool  # fit a constant effort offset (EMPS' reference model has one)
+    lag_s: float = 0.0  # electrical time constant L/R: the current follows u this much later
+    meta: dict[str, str] = field(default_factory=dict)
+    path: Path | None = None
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+    def slice(self, start: int, stop: int, suffix: str) -> Dataset:
+        return Dataset(
+            f"{self.name}{suffix}",
+            self.t[start:stop],
+            self.u[start:stop],
+            self.position[start:stop],
+            None if self.speed is None else self.speed[start:stop],
+            self.sample_rate_hz,
+            self.b_u,
+            self.b_omega,
+            self.units,
+            self.offset_term,
+            self.lag_s,
+            self.meta,
+            self.path,
+        )
+
+
+def load(path: Path, cfg: Config) -> Dataset:
+    """A recording CSV or an EMPS .mat file, by its suffix."""
+    path = Path(path)
+    if path.suffix.lower() == ".mat":
+        return load_emps(path)
+    rec = read_recording(path)
+    p = cfg.plant
+    return Dataset(
+        name=path.name,
+        t=rec.t,
+        u=rec.u,
+        position=rec.phi,
+        speed=rec.omega,
+        sample_rate_hz=rec.sample_rate_hz,
+        b_u=p.kM * p.ku / p.R,
+        b_omega=p.kM * p.kb / p.R,
+        units=ROTARY,
+        offset_term=False,
+        lag_s=p.L / p.R,
+        meta=dict(rec.meta),
+        path=path,
+    )
+
+
+def load_emps(path: Path) -> Dataset:
+    """EMPS benchmark file: qm (m), vir (V, force = gtau·vir), t (s); closed loop, 1 kHz."""
+    from scipy.io import loadmat
+
+    try:
+        data = loadmat(str(path))
+    except FileNotFoundError:
+        raise DataFileError(f"{path}: no such file") from None
+    except (ValueError, OSError, TypeError) as exc:
+        raise DataFileError(f"{path}: not a readable MATLAB .mat file ({exc})") from exc
+    missing = [k for k in ("t", "qm", "vir", "gtau") if k not in data]
+    if missing:
+        raise DataFileError(
+            f"{path}: row 1: missing variable(s) {', '.join(missing)}; an EMPS file has t, qm, vir, gtau"
+        )
+    t = np.asarray(data["t"], dtype=float).ravel()
+    qm = np.asarray(data["qm"], dtype=float).ravel()
+    vir = np.asarray(data["vir"], dtype=float).ravel()
+    if not (len(t) == len(qm) == len(vir)) or len(t) < 100:
+        raise DataFileError(f"{path}: t, qm, vir must have the same length ≥ 100")
+    for name, arr in (("t", t), ("qm", qm), ("vir", vir)):
+        bad = np.nonzero(~np.isfinite(arr))[0]
+        if len(bad):
+            raise DataFileError(f"{path}: row {bad[0] + 1}: {name} is NaN or infinite")
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        k = int(np.nonzero(dt <= 0)[0][0]) + 1
+        raise DataFileError(f"{path}: row {k + 1}: t does not increase")
+    gtau = float(np.asarray(data["gtau"]).ravel()[0])
+    return Dataset(
+        name=path.name,
+        t=t - t[0],
+        u=vir,
+        position=qm,
+        speed=None,
+        sample_rate_hz=float(1.0 / np.median(dt)),
+        b_u=gtau,
+        b_omega=0.0,
+        units=LINEAR,
+        offset_term=True,
+        meta={"source": "EMPS benchmark (Janot, Gautier, Brunot 2019)", "axis": "linear"},
+        path=path,
+    )

@@ -1,0 +1,81 @@
+"""The residual's noise: whiteness, colour, and the vibration level.
+
+The inverse model's residual in effort units holds J·Δv (the vibration) and the differentiated
+speed-measurement noise. The paper's Δv (eq. 12) is white: a flat spectrum in the band. A
+low-pass correlated Δv (Ornstein–Uhlenbeck, correlation time τ) is flat only below 1/(2πτ).
+The test fits both spectral shapes to the residual's Welch spectrum by Whittle's likelihood and
+compares them with a likelihood ratio (χ² with one degree of freedom: the extra τ):
+    white:    S(f) = a + b·f²
+    coloured: S(f) = a / (1 + (2πfτ)²) + b·f²
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize
+from scipy.signal import welch
+from scipy.stats import chi2
+
+SEGMENT_S = 4.0
+
+
+@dataclass(frozen=True)
+class NoiseReport:
+    ljung_box_p: float  # whiteness of the residual rows (20 lags)
+    colour_lr: float  # likelihood ratio, coloured vs white spectrum
+    colour_p: float
+    tau_s: float  # fitted correlation time (coloured model)
+    sigma_v: float  # vibration level, rad/s^1.5 (white) from the flat part of the spectrum
+    freq: np.ndarray
+    psd: np.ndarray
+
+
+def ljung_box(x: np.ndarray, lags: int = 20) -> float:
+    x = x - x.mean()
+    n = len(x)
+    denom = float(x @ x)
+    q = 0.0
+    for k in range(1, lags + 1):
+        rho = float(x[:-k] @ x[k:]) / denom
+        q += rho * rho / (n - k)
+    return float(chi2.sf(n * (n + 2) * q, lags))
+
+
+def _whittle(params: np.ndarray, f: np.ndarray, p: np.ndarray, coloured: bool) -> float:
+    a, b = math.exp(params[0]), math.exp(params[1])
+    s = a + b * f**2
+    if coloured:
+        tau = math.exp(params[2])
+        s = a / (1 + (2 * math.pi * f * tau) ** 2) + b * f**2
+    return float(np.sum(np.log(s) + p / s))
+
+
+def analyse(residual: np.ndarray, rate_hz: float, J: float, band_hz: float) -> NoiseReport:
+    nper = min(len(residual), int(SEGMENT_S * rate_hz))
+    f, p = welch(residual - residual.mean(), fs=rate_hz, nperseg=nper)
+    segments = max(1, 2 * len(residual) // nper - 1)  # 50 % overlap
+    m = (f >= 0.5) & (f <= 0.5 * band_hz)  # the band filter is flat to 1 % up to half its corner
+    fm, pm = f[m], p[m]
+    a0 = float(np.median(pm[: max(3, len(pm) // 10)]))
+    b0 = max(float(np.median(pm[-max(3, len(pm) // 10) :])) / fm[-1] ** 2, 1e-30)
+    white = minimize(_whittle, [math.log(a0), math.log(b0)], args=(fm, pm, False), method="Nelder-Mead")
+    best = None
+    for tau0 in (0.003, 0.01, 0.03, 0.1, 0.3):
+        r = minimize(
+            _whittle,
+            [math.log(a0), math.log(b0), math.log(tau0)],
+            args=(fm, pm, True),
+            method="Nelder-Mead",
+            options={"maxiter": 2000},
+        )
+        if best is None or r.fun < best.fun:
+            best = r
+    assert best is not None
+    lr = max(0.0, 2 * segments * (white.fun - best.fun))
+    tau = math.exp(best.x[2])
+    # White Δv of intensity σv (eq. 12): one-sided PSD of J·Δv is 2·J²·σv².
+    sigma_v = math.sqrt(math.exp(white.x[0]) / 2) / J if J > 0 else math.nan
+    return NoiseReport(ljung_box(residual), lr, float(chi2.sf(lr, 1)), tau, sigma_v, f, p)

@@ -1,0 +1,76 @@
+"""`tvsctl analyze FILE`: the model doctor (DESIGN.md contract)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from tvsd.cli.output import print_json, print_table
+from tvsd.config import load_config
+from tvsd.errors import EXIT_OK
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser(
+        "analyze",
+        help="model doctor: what the paper's model gets wrong in a recording, and why",
+        description="Fit the paper's model to a recording (CSV contract or EMPS .mat), find what it "
+        "misses, name the cause, extend the model and measure the gain on data not used for fitting.",
+    )
+    p.add_argument("file", type=Path, help="recording CSV (DESIGN.md) or EMPS .mat file")
+    p.add_argument(
+        "--heldout", type=Path, metavar="FILE", help="judge on this recording (default: last third)"
+    )
+    p.add_argument("--json", action="store_true", help="print the DESIGN.md JSON object")
+    p.add_argument("--report", type=Path, metavar="DIR", help="write report.md and figures into DIR")
+    p.add_argument("--config", type=Path, help="scanner config for R, L, kM, ku (default: config/tvsd.yaml)")
+    p.add_argument("--params", choices=("default", "paper"), default="default")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from tvsd.analysis import report as R
+    from tvsd.analysis.dataset import load
+    from tvsd.analysis.doctor import diagnose
+    from tvsd.analysis.prep import EMPS_BAND, Band
+    from tvsd.analysis.summary import as_json
+
+    cfg = load_config(args.config) if args.config else load_config(params=args.params)
+    start = time.monotonic()
+
+    def progress(message: str) -> None:
+        if not args.quiet:
+            print(f"[{time.monotonic() - start:5.1f} s] {message}", file=sys.stderr, flush=True)
+
+    data = load(args.file, cfg)
+    heldout = load(args.heldout, cfg) if args.heldout else None
+    band = EMPS_BAND if data.units.axis == "linear" else Band()
+    dg = diagnose(data, cfg.plant.v0, heldout=heldout, band=band, progress=progress)
+    summary = as_json(dg)
+    if args.report:
+        progress("writing the report")
+        page = R.write(dg, summary, args.report)
+        summary["report"] = str(page)
+    if args.json:
+        print_json(summary)
+        return EXIT_OK
+    print(summary["summary"])
+    print()
+    print_table(
+        [
+            (c["cause"], f"{c['score']:.1f}", f"{c['gain_pct']:.2f} %", "yes" if c["significant"] else "no")
+            for c in summary["candidates"]
+        ],
+        ["candidate", "z", "held-out gain", "significant"],
+    )
+    print()
+    print(
+        f"held-out speed RMSE: paper's model {dg.heldout_rmse_base:.4g}, extended {dg.heldout_rmse_ext:.4g} "
+        f"{data.units.speed} (gain {dg.gain_pct:.1f} %)"
+    )
+    if args.report:
+        print(f"report: {summary['report']}")
+    return EXIT_OK
