@@ -12,7 +12,6 @@ Needs only the standard library and PyYAML.
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 import zlib
 from dataclasses import dataclass
@@ -64,27 +63,8 @@ class SpecError(ValueError):
     """protocol.yaml breaks a rule the generator relies on."""
 
 
-class _Yaml12BoolLoader(yaml.SafeLoader):
-    """SafeLoader whose booleans are only true/false (YAML 1.2).
-
-    PyYAML follows YAML 1.1, where a bare `on`/`off`/`yes`/`no` is a boolean: laser_set's
-    field `[on, u8]` would load as True and the table hash would be computed over "True".
-    """
-
-
-_Yaml12BoolLoader.yaml_implicit_resolvers = {
-    first: [(tag, rx) for tag, rx in resolvers if tag != "tag:yaml.org,2002:bool"]
-    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
-}
-_Yaml12BoolLoader.add_implicit_resolver(
-    "tag:yaml.org,2002:bool",
-    re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"),
-    list("tTfF"),
-)
-
-
 def load(path: Path) -> tuple[dict[str, object], list[Message]]:
-    spec = yaml.load(path.read_text(), Loader=_Yaml12BoolLoader)
+    spec = yaml.safe_load(path.read_text())
     max_payload = int(spec["max_payload"])
     messages: list[Message] = []
     seen_ids: set[int] = set()
@@ -101,6 +81,9 @@ def load(path: Path) -> tuple[dict[str, object], list[Message]]:
         offset = 0
         fields: list[Field] = []
         for fname, ftype in raw["fields"]:
+            if not isinstance(fname, str) or not fname.isidentifier():
+                # YAML 1.1 reads a bare on/off/yes/no as a boolean: quote such names.
+                raise SpecError(f"{where}: field name {fname!r} is not an identifier (quote it in the YAML)")
             if ftype not in TYPES:
                 raise SpecError(f"{where}: field {fname!r} has unknown type {ftype!r}")
             fields.append(Field(str(fname), str(ftype), offset))

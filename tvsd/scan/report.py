@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from tvsd.errors import UsageError
+from tvsd.sim.plots import figure, save_png
 from tvsd.sim.scene import CaseResult
 
 # Paper Table 4 as printed (mm): σx, σy, σz at γ = −15, 0, 15°.
@@ -85,14 +86,9 @@ def encoder_summary(cases: Sequence[CaseResult]) -> list[dict[str, Any]]:
 
 def plot(cases: Sequence[CaseResult], strongest: float, path: Path) -> None:
     """σx per case with and without compensation, and the ±2σ coverage of every case."""
-    if path.suffix.lower() != ".png":
+    if path.suffix.lower() != ".png":  # before the 3–5 s of plotting, not after
         raise UsageError(f"--plot {path}: the plot is written as PNG; give a file name ending in .png")
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.5))
+    plt, fig, (ax1, ax2) = figure(1, 2, (12, 4.5))
     ours = [c for c in cases if c.method in PULSE_METHODS]
     levels = sorted({c.sigma_v for c in ours})
     for comp, marker in ((False, "o"), (True, "s")):
@@ -117,10 +113,4 @@ def plot(cases: Sequence[CaseResult], strongest: float, path: Path) -> None:
     ax2.set_xlabel("σx error std (mm)")
     ax2.set_ylabel("share of points within ±2σ")
     ax2.set_title("coverage (dashed: 90 % acceptance; dotted: Gaussian 95.4 %)")
-    fig.tight_layout()
-    try:
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise UsageError(f"cannot write {path}: {exc.strerror}") from exc
-    finally:
-        plt.close(fig)
+    save_png(plt, fig, path)

@@ -12,7 +12,8 @@ from tvsd.errors import UsageError
 from tvsd.sim.runs import Trace
 
 
-def _figure(rows: int, cols: int, size: tuple[float, float]) -> tuple[Any, Any, Any]:
+def figure(rows: int, cols: int, size: tuple[float, float]) -> tuple[Any, Any, Any]:
+    """(pyplot, figure, axes) on the Agg backend: no display needed."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -22,7 +23,8 @@ def _figure(rows: int, cols: int, size: tuple[float, float]) -> tuple[Any, Any, 
     return plt, fig, axes
 
 
-def _save(plt: Any, fig: Any, path: Path) -> None:
+def save_png(plt: Any, fig: Any, path: Path) -> None:
+    """Write a --plot figure; a wrong suffix or an unwritable path is a usage error (exit 2)."""
     if path.suffix.lower() != ".png":
         raise UsageError(f"--plot {path}: the plot is written as PNG; give a file name ending in .png")
     fig.tight_layout()
@@ -36,7 +38,7 @@ def _save(plt: Any, fig: Any, path: Path) -> None:
 
 def step_plot(trace: Trace, ref_rad: float, title: str, path: Path) -> None:
     """Phase portrait, position and velocity (the paper's Figs. 14–16)."""
-    plt, fig, ax = _figure(1, 3, (13, 3.8))
+    plt, fig, ax = figure(1, 3, (13, 3.8))
     ax[0].plot(trace.phi, trace.omega, lw=1)
     ax[0].plot([ref_rad], [0], "k+", ms=12)
     ax[0].set(xlabel="φ (rad)", ylabel="ω (rad/s)", title="phase portrait")
@@ -47,7 +49,7 @@ def step_plot(trace: Trace, ref_rad: float, title: str, path: Path) -> None:
     ax[2].plot(trace.t, trace.omega, lw=1)
     ax[2].set(xlabel="t (s)", ylabel="ω (rad/s)", title="velocity")
     fig.suptitle(title)
-    _save(plt, fig, path)
+    save_png(plt, fig, path)
 
 
 def spin_plot(
@@ -59,7 +61,7 @@ def spin_plot(
     title: str,
     path: Path,
 ) -> None:
-    plt, fig, ax = _figure(1, 2, (12, 4))
+    plt, fig, ax = figure(1, 2, (12, 4))
     ax[0].plot(trace.t, trace.omega_mean / (2 * math.pi), lw=0.8)
     ax[0].axhline(rps, color="k", lw=0.8, ls="--")
     ax[0].axvline(steady_from, color="0.6", lw=0.8, ls=":")
@@ -76,4 +78,4 @@ def spin_plot(
     )
     ax[1].legend()
     fig.suptitle(title)
-    _save(plt, fig, path)
+    save_png(plt, fig, path)

@@ -8,7 +8,6 @@ defines it.
 
 from __future__ import annotations
 
-import re
 import struct
 import zlib
 from collections.abc import Mapping
@@ -187,7 +186,10 @@ def parse_spec(doc: Any, path: Path) -> ProtocolSpec:
         fields: list[Field] = []
         for rf in raw_fields:
             if not isinstance(rf, list) or len(rf) != 2 or not isinstance(rf[0], str) or rf[1] not in TYPES:
-                raise ConfigError(f"{where}: field {rf!r} must be [name, type] with type in {sorted(TYPES)}")
+                raise ConfigError(
+                    f"{where}: field {rf!r} must be [name, type] with type in {sorted(TYPES)} "
+                    "(YAML reads a bare on/off/yes/no as a boolean: quote such names)"
+                )
             if any(f.name == rf[0] for f in fields):
                 raise ConfigError(f"{where}: field {rf[0]} appears twice")
             fields.append(Field(rf[0], rf[1]))
@@ -214,25 +216,6 @@ def load_spec(path: str | Path | None = None) -> ProtocolSpec:
     return _load_cached(p.resolve())
 
 
-class _Yaml12Loader(yaml.SafeLoader):
-    """SafeLoader with YAML 1.2 booleans: only true/false are booleans.
-
-    PyYAML follows YAML 1.1, where on/off/yes/no are booleans too, so the laser_set field
-    ``[on, u8]`` would load as ``[True, 'u8']``.
-    """
-
-
-_Yaml12Loader.yaml_implicit_resolvers = {
-    first: [(tag, rx) for tag, rx in resolvers if tag != "tag:yaml.org,2002:bool"]
-    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
-}
-_Yaml12Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:bool",
-    re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"),
-    list("tTfF"),
-)
-
-
 @cache
 def _load_cached(path: Path) -> ProtocolSpec:
     try:
@@ -243,7 +226,7 @@ def _load_cached(path: Path) -> ProtocolSpec:
             "the tvsd source tree"
         ) from exc
     try:
-        doc = yaml.load(text, Loader=_Yaml12Loader)
+        doc = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
     return parse_spec(doc, path)
