@@ -102,8 +102,10 @@ def test_bus_payload_rate_measured_against_the_budget(bus):
     # at 122.5 bus bits per frame the bus alone allows hz/122.5*12 bytes/s; kernel overhead
     # per transfer only lowers it
     ceiling = hz / ((27 + 9 * 24 + 2) / 2) * FRAME_BYTES
-    print(f"measured {payload / dt:.0f} B/s payload, bus ceiling {ceiling:.0f} B/s at {hz:.0f} Hz, "
-          f"budget for 1 kHz: {budget['payload_bytes_per_s']:.0f} B/s")
+    print(
+        f"measured {payload / dt:.0f} B/s payload, bus ceiling {ceiling:.0f} B/s at {hz:.0f} Hz, "
+        f"budget for 1 kHz: {budget['payload_bytes_per_s']:.0f} B/s"
+    )
     assert payload / dt <= ceiling * 1.02
     assert payload / dt > budget["payload_bytes_per_s"] * 1.2, "bus too slow for 1 kHz + margin"
 

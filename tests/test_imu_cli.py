@@ -29,8 +29,19 @@ def run(capsys, *argv):
 
 
 def test_capture_sil_shows_the_imbalance_line_at_the_rotation_rate(capsys, tmp_path):
-    status, out, err = run(capsys, "imu", "capture", "--sil", "--seconds", "5", "--json",
-                           "--out", str(tmp_path / "s.csv"), "--plot", str(tmp_path / "s.png"))
+    status, out, err = run(
+        capsys,
+        "imu",
+        "capture",
+        "--sil",
+        "--seconds",
+        "5",
+        "--json",
+        "--out",
+        str(tmp_path / "s.csv"),
+        "--plot",
+        str(tmp_path / "s.png"),
+    )
     assert status == 0, err
     r = json.loads(out)
     # 5 s record: bins 0.2 Hz; the flat-top lobe centroid lands well inside one bin
@@ -50,16 +61,26 @@ def test_capture_sil_shows_the_imbalance_line_at_the_rotation_rate(capsys, tmp_p
 
 
 def test_capture_without_the_effect_shows_no_line_at_the_rotation_rate(capsys):
-    status, out, _ = run(capsys, "imu", "capture", "--sil", "--seconds", "5", "--json",
-                         "--imbalance", "0")
+    status, out, _ = run(capsys, "imu", "capture", "--sil", "--seconds", "5", "--json", "--imbalance", "0")
     r = json.loads(out)
     # only the OU vibration (0.3 rad/s^2 rms, broadband): no 2 rad/s^2 line anywhere
     assert status == 0 and r["peak_rad_s2"] < 0.3
 
 
 def test_capture_under_faults_counts_losses_and_still_finds_the_line(capsys):
-    status, out, err = run(capsys, "imu", "capture", "--sil", "--seconds", "5", "--json",
-                           "--sil-fault", "disconnect:1:1.5:sa", "--sil-fault", "eio:3:3.01")
+    status, out, err = run(
+        capsys,
+        "imu",
+        "capture",
+        "--sil",
+        "--seconds",
+        "5",
+        "--json",
+        "--sil-fault",
+        "disconnect:1:1.5:sa",
+        "--sil-fault",
+        "eio:3:3.01",
+    )
     assert status == 0, err
     r = json.loads(out)
     assert r["sensors"]["sa"]["lost"] > 400 and r["sensors"]["sa"]["errors"] > 0
@@ -77,14 +98,14 @@ def test_bad_arguments_exit_2_without_traceback(capsys):
 
 
 def test_wrong_chip_exits_3_with_the_wiring_hint(capsys):
-    status, _, err = run(capsys, "imu", "capture", "--sil", "--seconds", "1",
-                         "--sil-who-am-i", "0x00")
+    status, _, err = run(capsys, "imu", "capture", "--sil", "--seconds", "1", "--sil-who-am-i", "0x00")
     assert status == 3 and "WHO_AM_I = 0x00" in err and "AD0" in err
 
 
 def test_a_named_calibration_file_must_exist(capsys, tmp_path):
-    status, _, err = run(capsys, "imu", "capture", "--sil", "--seconds", "1",
-                         "--calibration", str(tmp_path / "none.json"))
+    status, _, err = run(
+        capsys, "imu", "capture", "--sil", "--seconds", "1", "--calibration", str(tmp_path / "none.json")
+    )
     assert status == 2 and "none.json" in err and "tvsctl imu calibrate" in err
 
 
@@ -98,11 +119,21 @@ def test_calibrate_sil_writes_a_file_and_refuses_a_spinning_scanner(capsys, tmp_
     status, out, err = run(capsys, "imu", "calibrate", "--sil", "--json", "--out", str(out_file))
     assert status == 0, err
     assert json.loads(out)["file"] == str(out_file)
-    status, out, err = run(capsys, "imu", "capture", "--sil", "--seconds", "1", "--json",
-                           "--calibration", str(out_file))
+    status, out, err = run(
+        capsys, "imu", "capture", "--sil", "--seconds", "1", "--json", "--calibration", str(out_file)
+    )
     assert status == 0 and json.loads(out)["calibrated"] is True
-    status, _, err = run(capsys, "imu", "calibrate", "--sil", "--sil-moving", "--imbalance", "5",
-                         "--out", str(tmp_path / "moving.json"))
+    status, _, err = run(
+        capsys,
+        "imu",
+        "calibrate",
+        "--sil",
+        "--sil-moving",
+        "--imbalance",
+        "5",
+        "--out",
+        str(tmp_path / "moving.json"),
+    )
     assert status == 1 and "is moving" in err and not (tmp_path / "moving.json").exists()
 
 

@@ -95,8 +95,7 @@ def test_power_cycle_is_detected():
 
 def test_si_conversion_sees_gravity_tilted_by_gamma():
     gamma = np.radians(30)
-    x = rig(signal="motion", rps=0, imbalance_rad_s2=0, vibration_std_rad_s2=0,
-                          gamma_rad=gamma)
+    x = rig(signal="motion", rps=0, imbalance_rad_s2=0, vibration_std_rad_s2=0, gamma_rad=gamma)
     x.drv.start()
     x.clock.sleep(0.08)
     frames: list[np.ndarray] = []
@@ -189,8 +188,9 @@ REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "mpu60
 def test_twin_clips_like_a_real_mpu6050():
     """The ERM record (SOURCE.md: saturated at +-2 g) clips at -32768 and +32767 LSB exactly:
     -2.0 g and 1.99994 g. The twin, read through the driver, must clip the same way."""
-    real = np.genfromtxt(REAL / "motor_data_20241031_040618.csv", delimiter=",", names=True,
-                         dtype=None, encoding=None)
+    real = np.genfromtxt(
+        REAL / "motor_data_20241031_040618.csv", delimiter=",", names=True, dtype=None, encoding=None
+    )
     real_acc = np.stack([real["acc_x"], real["acc_z"]])
     settings = ImuSettings(accel_fs_g=2)
     clock = ManualClock()

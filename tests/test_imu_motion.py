@@ -15,8 +15,7 @@ def alpha_of(sample, params):
 
 @pytest.mark.parametrize("dt", [1e-3, 2.5e-4])
 def test_ou_vibration_has_its_std_whatever_the_step(dt):
-    p = SyntheticParams(rps=0, imbalance_rad_s2=0, vibration_std_rad_s2=0.8,
-                        vibration_tau_s=0.005, seed=2)
+    p = SyntheticParams(rps=0, imbalance_rad_s2=0, vibration_std_rad_s2=0.8, vibration_tau_s=0.005, seed=2)
     motion = SyntheticMotion(p)
     t = np.arange(0, 100.0, dt)
     alpha = np.concatenate([alpha_of(motion.sample(c), p) for c in np.array_split(t, 7)])
@@ -30,8 +29,7 @@ def test_ou_vibration_has_its_std_whatever_the_step(dt):
 
 def test_imbalance_line_and_gravity_direction():
     gamma = np.radians(20)
-    p = SyntheticParams(rps=19.87, imbalance_rad_s2=1.5, vibration_std_rad_s2=0,
-                        gamma_rad=gamma)
+    p = SyntheticParams(rps=19.87, imbalance_rad_s2=1.5, vibration_std_rad_s2=0, gamma_rad=gamma)
     m = SyntheticMotion(p).sample(np.arange(0, 2.0, 1e-4))
     alpha = alpha_of(m, p)
     assert abs(alpha.max() - 1.5) < 1e-3 and abs(alpha.min() + 1.5) < 1e-3

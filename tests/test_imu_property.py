@@ -34,12 +34,16 @@ faults = st.lists(fault(), max_size=4)
 
 
 @example(  # found by a 300-example run: an epoch that never delivered, at the very end
-    schedule=[Fault("stall", 2.0, 2.25, 0x69), Fault("nack", 1.75, 1.828125),
-              Fault("nack", 0.5, 0.75, 0x69), Fault("stall", 0.9375, 1.125)],
-    error_rate=0.02, seed=41,
+    schedule=[
+        Fault("stall", 2.0, 2.25, 0x69),
+        Fault("nack", 1.75, 1.828125),
+        Fault("nack", 0.5, 0.75, 0x69),
+        Fault("stall", 0.9375, 1.125),
+    ],
+    error_rate=0.02,
+    seed=41,
 )
-@settings(max_examples=40, deadline=None, database=None,
-          suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=40, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow])
 @given(schedule=faults, error_rate=st.sampled_from([0.0, 0.002, 0.02]), seed=st.integers(0, 99))
 def test_samples_out_equal_samples_in_minus_counted_losses(schedule, error_rate, seed):
     clock = ManualClock()

@@ -222,13 +222,17 @@ def test_make_reader_applies_the_calibration_file(tmp_path):
     from tvsd.hw.imu_reader import make_reader
 
     clock = ManualClock()
-    bus, devs = sil_pair(S, clock, synthetic_pair(SyntheticParams(
-        rps=0, imbalance_rad_s2=0, vibration_std_rad_s2=0)))
+    bus, devs = sil_pair(
+        S, clock, synthetic_pair(SyntheticParams(rps=0, imbalance_rad_s2=0, vibration_std_rad_s2=0))
+    )
     path = tmp_path / "cal.json"
-    cal.save(path, {
-        n: cal.SensorCalibration(tuple(d.gyro_bias), (0.0, 0.0, 9.8), 2000, (1e-3,) * 3)
-        for n, d in devs.items()
-    })
+    cal.save(
+        path,
+        {
+            n: cal.SensorCalibration(tuple(d.gyro_bias), (0.0, 0.0, 9.8), 2000, (1e-3,) * 3)
+            for n, d in devs.items()
+        },
+    )
     reader = make_reader(bus, ImuSettings(calibration_file=path), clock)
     batches = reader.run_for(1.0)
     for name in ("pl", "sa"):

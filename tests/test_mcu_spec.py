@@ -93,8 +93,10 @@ def test_explicit_path(tmp_path: Path) -> None:
 
 def test_a_bare_yaml_boolean_field_name_says_to_quote_it(tmp_path: Path) -> None:
     f = tmp_path / "p.yaml"
-    f.write_text("version: 9\nsync: 0x55\nmax_payload: 4\n"
-                 "messages:\n  - {id: 0x02, name: go, dir: h2m, fields: [[on, u8]]}\n")
+    f.write_text(
+        "version: 9\nsync: 0x55\nmax_payload: 4\n"
+        "messages:\n  - {id: 0x02, name: go, dir: h2m, fields: [[on, u8]]}\n"
+    )
     with pytest.raises(ConfigError, match="quote such names"):
         load_spec(f)
 

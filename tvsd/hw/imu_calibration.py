@@ -49,9 +49,7 @@ class SensorCalibration:
     chip: str = ""
 
 
-def calibrate_sensor(
-    name: str, accel: np.ndarray, gyro: np.ndarray, chip: str = ""
-) -> SensorCalibration:
+def calibrate_sensor(name: str, accel: np.ndarray, gyro: np.ndarray, chip: str = "") -> SensorCalibration:
     """Bias from samples at rest (accel m/s^2 and gyro rad/s, (n, 3) each), or refuse."""
     gyro, accel = np.asarray(gyro, float), np.asarray(accel, float)
     if len(gyro) < MIN_SAMPLES:
@@ -126,8 +124,7 @@ def load(path: Path) -> dict[str, SensorCalibration]:
         raise DataFileError(f"{path}: not an IMU calibration file (format != {FORMAT!r})")
     if data.get("version") != VERSION:
         raise DataFileError(
-            f"{path}: calibration version {data.get('version')!r}, this tvsd reads {VERSION}: "
-            "calibrate again"
+            f"{path}: calibration version {data.get('version')!r}, this tvsd reads {VERSION}: calibrate again"
         )
     digest = data.pop("sha256", None)
     if digest != _digest(data):

@@ -76,9 +76,7 @@ class ManualClock:
             self.t += seconds
 
 
-def _line_rate(
-    t: np.ndarray, k: np.ndarray, group: np.ndarray
-) -> tuple[float, float] | None:
+def _line_rate(t: np.ndarray, k: np.ndarray, group: np.ndarray) -> tuple[float, float] | None:
     """Slope of k against t (one offset per group) and its standard error; two rounds of
     outlier rejection. None when the span is too short to beat the nominal rate."""
     keep = np.ones(len(t), dtype=bool)
@@ -248,10 +246,16 @@ class SensorReader:
 
     def status(self) -> dict[str, object]:
         return {
-            "state": self.state, "chip": self.chip, "rate_hz": self.fit.rate(),
+            "state": self.state,
+            "chip": self.chip,
+            "rate_hz": self.fit.rate(),
             "rate_sigma_hz": self.fit.rate_stderr,
-            "samples": self.samples, "lost": self.lost, "errors": self.errors,
-            "overflows": self.overflows, "resyncs": self.resyncs, "restarts": self.restarts,
+            "samples": self.samples,
+            "lost": self.lost,
+            "errors": self.errors,
+            "overflows": self.overflows,
+            "resyncs": self.resyncs,
+            "restarts": self.restarts,
             "last_error": self.last_error,
         }
 

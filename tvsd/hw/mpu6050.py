@@ -402,9 +402,7 @@ class Mpu6050:
                 self.sleep(1.0 / self.settings.sample_rate_hz)
             means.append(np.mean(acc, axis=0))
         response = means[1] - means[0]
-        accel_ft = [
-            4096 * 0.34 * (0.92 / 0.34) ** ((t - 1) / 30) if t else 0.0 for t in a_test
-        ]
+        accel_ft = [4096 * 0.34 * (0.92 / 0.34) ** ((t - 1) / 30) if t else 0.0 for t in a_test]
         gyro_ft = [
             sign * 25 * 131 * 1.046 ** (t - 1) if t else 0.0
             for sign, t in zip((1, -1, 1), g_test, strict=True)

@@ -207,8 +207,7 @@ class ArrayMotion:
         t = np.asarray(t, dtype=np.float64)
         if t.size and (t[0] < self.t_s[0] or t[-1] > self.t_s[-1]):
             raise ValueError(
-                f"ArrayMotion covers {self.t_s[0]:g}..{self.t_s[-1]:g} s, asked "
-                f"{t[0]:g}..{t[-1]:g} s"
+                f"ArrayMotion covers {self.t_s[0]:g}..{self.t_s[-1]:g} s, asked {t[0]:g}..{t[-1]:g} s"
             )
         alpha = np.interp(t, self.t_s, self.alpha_sa)
         omega = np.interp(t, self.t_s, self.omega)

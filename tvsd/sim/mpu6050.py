@@ -141,10 +141,12 @@ class SimMpu6050:
         a_lsb, g_lsb = self._scales()
         noise_g = GYRO_NOISE_DPS_RTHZ * np.pi / 180 * np.sqrt(rate / 2)
         noise_a = ACCEL_NOISE_G_RTHZ * reg.GRAVITY * np.sqrt(rate / 2)
-        x = np.hstack([
-            m.accel + self.accel_bias + noise_a * self._rng.standard_normal((t.size, 3)),
-            m.gyro + self.gyro_bias + noise_g * self._rng.standard_normal((t.size, 3)),
-        ])
+        x = np.hstack(
+            [
+                m.accel + self.accel_bias + noise_a * self._rng.standard_normal((t.size, 3)),
+                m.gyro + self.gyro_bias + noise_g * self._rng.standard_normal((t.size, 3)),
+            ]
+        )
         if self._sos is None:  # the DLPF, modelled as a 2nd-order Butterworth at its bandwidth
             bw = reg.DLPF_GYRO_BW_HZ.get(self.regs[reg.CONFIG] & 7, 256.0)
             self._sos = butter(2, min(bw, 0.45 * rate), fs=rate, output="sos")
@@ -295,9 +297,7 @@ class SimI2CBus:
         self._transaction(i2c_addr, 1, register, write=False)
         return self.devices[i2c_addr].read(register, 1)[0]
 
-    def write_byte_data(
-        self, i2c_addr: int, register: int, value: int, force: bool | None = None
-    ) -> None:
+    def write_byte_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None:
         self._transaction(i2c_addr, 1, register, write=True)
         self.devices[i2c_addr].write(register, value)
 
@@ -333,12 +333,13 @@ def sil_pair(
     errors = rate_errors or {"pl": 0.027, "sa": -0.031}
     devices = {
         name: SimMpu6050(
-            None if motions is None else motions[name], clock, rate_error=errors[name],
-            signal=signal, seed=seed + i,
+            None if motions is None else motions[name],
+            clock,
+            rate_error=errors[name],
+            signal=signal,
+            seed=seed + i,
         )
         for i, name in enumerate(("pl", "sa"))
     }
-    bus = SimI2CBus(
-        clock, {settings.addresses[n]: d for n, d in devices.items()}, bus_hz=bus_hz, seed=seed
-    )
+    bus = SimI2CBus(clock, {settings.addresses[n]: d for n, d in devices.items()}, bus_hz=bus_hz, seed=seed)
     return bus, devices
