@@ -23,6 +23,7 @@ COMMANDS: dict[str, str] = {
     "analyze": "tvsd.cli.analyze",
     "imu": "tvsd.cli.imu",
     "mcu": "tvsd.cli.mcu",
+    "export": "tvsd.cli.export",
 }
 
 
