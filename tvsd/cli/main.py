@@ -24,6 +24,7 @@ COMMANDS: dict[str, str] = {
     "imu": "tvsd.cli.imu",
     "mcu": "tvsd.cli.mcu",
     "export": "tvsd.cli.export",
+    "latency": "tvsd.cli.latency",
 }
 
 

@@ -1,0 +1,219 @@
+"""The 10 kHz control runner: function, never timing (DESIGN.md: these machines wake threads late).
+
+Every assertion here holds however late the machine wakes the thread: tick counts, the law's
+arithmetic on what was recorded, the plant's physics over real elapsed time, the overrun logic
+driven by a busy-wait hook (the overrun is then certain, not a matter of luck).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import tracemalloc
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+from numba.core.runtime import _nrt_python as nrt_stats  # type: ignore[attr-defined]
+from numba.core.runtime import rtsys
+
+from tvsd.config import load_config
+from tvsd.control import latency as L
+from tvsd.control import runner as RN
+from tvsd.model import params as P
+from tvsd.model import plant as K
+from tvsd.sim.runs import Setup
+
+
+@pytest.fixture(scope="module")
+def setup() -> Setup:
+    s = Setup.from_config(load_config(params="default"))
+    warm = RN.Runner(s)  # load (or compile) the kernel once, outside the tests' waits
+    warm.start(max_ticks=2)
+    warm.join(120.0)
+    return s
+
+
+def _law(eps: float, eps_dot: float, g: tuple[float, float, float, float], umax: float) -> float:
+    """Eq. (18), corrected sign, in plain Python: the reference the kernel is checked against."""
+    gp, gd, gr, g0 = g
+    u = gp * math.tanh(eps) + gd * math.tanh(eps_dot) + gr * math.tanh(g0 * eps)
+    return max(-umax, min(umax, u))
+
+
+def _wait(pred: Callable[[], bool], timeout: float) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def test_runs_n_ticks_then_stops_on_request(setup: Setup) -> None:
+    r = RN.Runner(setup)
+    r.start(max_ticks=500)
+    r.join(30.0)
+    assert r.ticks == 500
+    assert r.ints[L.K_RUNNING] == 0
+    r.start()
+    assert _wait(lambda: r.ticks > 100, 10.0), "loop did not tick"
+    r.stop(5.0)
+    stopped_at = r.ticks
+    time.sleep(0.05)
+    assert r.ticks == stopped_at, "ticks after stop"
+    assert r.ints[L.K_RUNNING] == 0
+    assert r.command == 0.0, "a stopped loop must command nothing"
+
+
+def test_histogram_counts_every_tick(setup: Setup) -> None:
+    r = RN.Runner(setup)
+    r.scan(20.0)
+    r.start(max_ticks=3000)
+    r.join(30.0)
+    assert int(r.hist.sum()) == r.ticks == 3000
+    s = r.stats()
+    assert s.ticks == 3000 and s.max_us >= 0.0 and s.p50_us <= s.p99_us <= s.p999_us
+
+
+def test_scanning_command_is_the_law_of_what_it_saw(setup: Setup) -> None:
+    r = RN.Runner(setup)
+    r.scan(20.0)
+    r.start(max_ticks=4000)
+    r.join(30.0)
+    rec = r.recent()
+    assert len(rec) == 4000
+    g = setup.gains.as_tuple()
+    p = setup.plant
+    for k in range(1, len(rec)):
+        row, prev = rec[k], rec[k - 1]
+        dt = row[RN.R_DT]
+        # The references advance by the measured step, which is the recorded wake-to-wake time.
+        assert dt == pytest.approx(row[RN.R_T] - prev[RN.R_T], abs=1e-9)
+        assert row[RN.R_PHI_REF] - prev[RN.R_PHI_REF] == pytest.approx(row[RN.R_OMEGA_REF] * dt, abs=1e-12)
+        alpha = (row[RN.R_OMEGA_REF] - prev[RN.R_OMEGA_REF]) / dt
+        u_ff = K.feedforward.py_func(
+            row[RN.R_OMEGA_REF],
+            alpha,
+            p[P.P_J],
+            p[P.P_KV] + p[P.P_S2],
+            p[P.P_KM],
+            p[P.P_KB],
+            p[P.P_R],
+            p[P.P_KU],
+            p[P.P_TC],
+            p[P.P_TS],
+            p[P.P_V0],
+        )
+        assert row[RN.R_UFF] == pytest.approx(u_ff, rel=1e-9, abs=1e-12)
+        lim = max(setup.u_max - abs(u_ff), 0.0)
+        eps = row[RN.R_PHI_REF] - row[RN.R_PHI]
+        expect = _law(eps, row[RN.R_OMEGA_REF] - row[RN.R_OMEGA], g, lim) + u_ff
+        assert row[RN.R_U] == pytest.approx(expect, abs=1e-12), f"tick {k}"
+
+
+def test_hardware_mode_uses_the_measured_inputs(setup: Setup) -> None:
+    """Without SIL the kernel reads φ, ω from the shared array the I/O side writes."""
+    r = RN.Runner(setup, sil=False)
+    r.measured(0.1, 2.0)
+    r.position(0.3)
+    r.start()
+    assert _wait(lambda: r.ticks > 50, 10.0)
+    u_seen = r.command
+    r.stop(5.0)
+    expect = _law(0.3 - 0.1, -2.0, setup.gains.as_tuple(), setup.u_max)
+    assert u_seen == pytest.approx(expect, abs=1e-12)
+    rec = r.recent(10)
+    assert np.all(rec[:, RN.R_PHI] == 0.1) and np.all(rec[:, RN.R_OMEGA] == 2.0)
+
+
+def test_sil_plant_spins_up_in_real_time(setup: Setup) -> None:
+    """20 rev/s: the reference ramps at 10 rev/s² (2 s), the plant settles within ~0.5 s more.
+
+    The plant advances by real elapsed time whatever the wake-up lateness, so only the bound on
+    wall time is generous (8 s): late ticks worsen tracking, they do not slow the physics.
+    """
+    r = RN.Runner(setup)
+    r.scan(20.0)
+    t0 = time.monotonic()
+    r.start()
+    target = 2 * math.pi * 20.0
+    ok = _wait(lambda: abs(r.vals[RN.V_OMEGA] - target) < 0.02 * target and time.monotonic() - t0 > 2.0, 8.0)
+    wall = time.monotonic() - t0
+    r.stop(5.0)
+    sim_time = r.recent(1)[0, RN.R_T]
+    assert ok, f"SIL plant at {r.vals[RN.V_OMEGA] / 2 / math.pi:.2f} rev/s after {wall:.1f} s"
+    assert wall >= 1.9, "the ramp cannot finish before 2 s of real time: the plant ran faster than real time"
+    assert sim_time == pytest.approx(wall, abs=0.3)
+    assert r.state[K.S_OMEGA] == r.vals[RN.V_OMEGA]
+
+
+def test_overrun_streak_latches_the_safe_state(setup: Setup) -> None:
+    """A busy wait of 3 periods per tick makes every tick wake ≥ 2 periods late: certain overrun."""
+    r = RN.Runner(setup, streak_limit=20)
+    r.scan(20.0)
+    r.ints[RN.K_BUSY_NS] = 3 * r.ints[L.K_PERIOD_NS]
+    r.start()
+    assert _wait(lambda: r.fault, 10.0), "no fault after sustained overrun"
+    assert r.ints[L.K_LATE_TICKS] >= 20
+    assert _wait(lambda: r.command == 0.0, 1.0)
+    time.sleep(0.02)
+    assert r.command == 0.0 and r.fault, "the safe state must latch"
+    r.ints[RN.K_BUSY_NS] = 0
+    r.stop(5.0)
+    assert r.stats().missed_ticks >= 2 * r.ints[L.K_LATE_TICKS] - 1  # each late tick skipped ≥ 2
+
+
+def test_unmeetable_period_trips_the_fault(setup: Setup) -> None:
+    """A 2 µs period cannot be met (one clock_nanosleep costs more): the streak trips."""
+    r = RN.Runner(setup, period_s=2e-6, streak_limit=50)
+    r.scan(20.0)
+    r.start()
+    assert _wait(lambda: r.fault, 10.0)
+    r.stop(5.0)
+    r.clear_fault()
+    assert not r.fault
+
+
+def test_wait_tick_accounting() -> None:
+    """A deadline 5.5 periods in the past: one late tick, 5 deadlines skipped, phase kept."""
+    ints, hist = L.new_timing(1.0)
+    ts = np.zeros(2, dtype=np.int64)
+    now = L.now_ns(ts)
+    wake, served = L.wait_tick(ints, hist, L.EDGES_NS, ts, now - 5_500_000_000)
+    assert ints[L.K_MISSED] == 5 and ints[L.K_LATE_TICKS] == 1 and ints[L.K_STREAK] == 1
+    assert served == now - 500_000_000
+    assert hist[-1] == 1  # ≥ 10 ms: overflow bin
+    wake, served = L.wait_tick(ints, hist, L.EDGES_NS, ts, L.now_ns(ts) + 1_000_000)
+    assert ints[L.K_STREAK] == 0 and ints[L.K_MISSED] == 5
+    assert wake >= served
+    assert int(hist.sum()) == 2
+
+
+def test_no_allocation_per_tick(setup: Setup) -> None:
+    """Python side: tracemalloc flat over 5000 ticks. Kernel: no NRT allocation per tick in
+    hardware mode; the SIL plant kernel (tvsd.model.plant.run) allocates its delay ring per call."""
+    per_tick: dict[bool, float] = {}
+    nrt_stats.memsys_enable_stats()  # NUMBA_NRT_STATS=1, switched on at run time
+    for sil in (False, True):
+        r = RN.Runner(setup, sil=sil)
+        r.measured(0.0, 0.0)
+        r.position(0.2)
+        counts = []
+        for n in (200, 5200):
+            a = rtsys.get_allocation_stats().alloc
+            r.start(max_ticks=n)
+            if n > 200:
+                tracemalloc.start()
+                before = tracemalloc.get_traced_memory()[0]
+            r.join(30.0)
+            if n > 200:
+                grown = tracemalloc.get_traced_memory()[0] - before
+                tracemalloc.stop()
+                assert grown < 16_000, f"Python side grew {grown} B over 5000 ticks"
+            counts.append(rtsys.get_allocation_stats().alloc - a)
+            r.ints[L.K_TICKS] = 0
+        per_tick[sil] = (counts[1] - counts[0]) / 5000
+    nrt_stats.memsys_disable_stats()
+    assert per_tick[False] == 0.0
+    assert per_tick[True] <= 1.0

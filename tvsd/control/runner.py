@@ -1,0 +1,350 @@
+"""The 10 kHz control thread: one numba nogil kernel that paces itself on absolute deadlines.
+
+The kernel (`control_loop`) never returns to Python while it runs: it sleeps with
+`clock_nanosleep(TIMER_ABSTIME)` (tvsd.control.latency.wait_tick), evaluates the robust law and
+writes the command, and exchanges everything with the I/O side through preallocated numpy arrays:
+
+- `ints` (int64): the timing words of tvsd.control.latency, then K_FAULT, K_STREAK_LIMIT, K_BUSY_NS.
+- `vals` (float64): inputs V_MODE … V_OMEGA (written by the I/O side), outputs V_U … V_DT.
+- `hist`: the lateness histogram; `rec`: a ring of the last ticks (what the law saw and did),
+  indexed by tick number, which the asyncio side reads in batches.
+
+Each input word is read once per tick; a multi-word update (the four gains) can straddle one
+tick (100 µs), which is harmless for gain sets that each satisfy the conditions.
+
+The law uses the measured time step: references advance by the real elapsed time, so a late tick
+degrades gracefully. `streak_limit` consecutive ticks that wake more than a period late latch the
+safe state (K_FAULT = 1, command 0) until the I/O side clears K_FAULT.
+
+SIL: the plant kernel (tvsd.model.plant.run, open loop) is stepped inside the same loop by the
+real elapsed time with the command held since the previous tick, so the simulated scanner runs in
+real time. Its time-dependent effects (resonance, drift, delay) restart at each call, so in the
+runner only the state-dependent effects and the vibration are faithful.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import math
+import os
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from tvsd.control import latency as L
+from tvsd.control.law import robust_law
+from tvsd.model import params as P
+from tvsd.model import plant as K
+from tvsd.sim.runs import Setup
+
+# Runner words after the timing words of tvsd.control.latency.
+K_FAULT, K_STREAK_LIMIT, K_BUSY_NS = L.N_TIMING, L.N_TIMING + 1, L.N_TIMING + 2
+N_INTS = L.N_TIMING + 3
+
+# vals: inputs (I/O side writes) then outputs (kernel writes).
+(V_MODE, V_REF, V_GP, V_GD, V_GR, V_G0, V_UMAX, V_ACCEL, V_MAXLAG, V_FF, V_PHI, V_OMEGA) = range(12)
+(V_U, V_PHI_REF, V_OMEGA_REF, V_DT) = range(12, 16)
+N_VALS = 16
+MODE_IDLE, MODE_POSITION, MODE_SCAN = 0, K.MODE_POSITION, K.MODE_SCAN
+
+# rec columns: one row per tick, row = tick % len(rec).
+R_T, R_DT, R_PHI, R_OMEGA, R_PHI_REF, R_OMEGA_REF, R_UFF, R_U, R_LATE_US = range(9)
+N_REC = 9
+
+MAX_DT_S = 0.05  # a longer stall (suspend, debugger) advances the references by this much only
+MAX_PLANT_STEPS = 1000  # SIL catch-up cap per tick (0.1 s at 10 kHz); beyond it sim time lags
+
+
+@njit(cache=True, nogil=True)
+def _busy(ts: np.ndarray, ns: int) -> None:
+    """Test hook: burn `ns` of wall time inside the tick (artificial overrun)."""
+    end = L.now_ns(ts) + ns
+    while L.now_ns(ts) < end:
+        pass
+
+
+@njit(cache=True, nogil=True)
+def control_loop(
+    ints: np.ndarray,
+    vals: np.ndarray,
+    hist: np.ndarray,
+    edges: np.ndarray,
+    rec: np.ndarray,
+    ts: np.ndarray,
+    sil: bool,
+    state: np.ndarray,
+    plant: np.ndarray,
+    eff: np.ndarray,
+    vib: np.ndarray,
+    pctrl: np.ndarray,
+    u_hold: np.ndarray,
+    pout: np.ndarray,
+    plant_dt: float,
+) -> None:
+    """Run ticks until ints[K_STOP] (or K_MAX_TICKS); all state lives in the arrays."""
+    ints[L.K_RUNNING] = 1
+    cpu0 = L.thread_cpu_ns(ts)
+    start = L.now_ns(ts)
+    ints[L.K_START_NS] = start
+    period = ints[L.K_PERIOD_NS]
+    deadline = start + period
+    prev = start
+    phi_ref = vals[V_PHI]
+    omega_ref = 0.0
+    sim_debt = 0.0
+    n_rec = rec.shape[0]
+    J, kv, kM, kb = plant[P.P_J], plant[P.P_KV] + plant[P.P_S2], plant[P.P_KM], plant[P.P_KB]
+    R, ku, tc, tsv, v0 = plant[P.P_R], plant[P.P_KU], plant[P.P_TC], plant[P.P_TS], plant[P.P_V0]
+    u = 0.0
+    while ints[L.K_STOP] == 0:
+        wake, deadline = L.wait_tick(ints, hist, edges, ts, deadline)
+        dt = min((wake - prev) / 1e9, MAX_DT_S)
+        prev = wake
+        if ints[K_BUSY_NS] > 0:
+            _busy(ts, ints[K_BUSY_NS])
+        if sil:
+            # The command held over the elapsed interval drives the plant (zero-order hold).
+            sim_debt += dt
+            n = min(int(sim_debt / plant_dt), MAX_PLANT_STEPS)
+            sim_debt = 0.0 if n == MAX_PLANT_STEPS else sim_debt - n * plant_dt
+            u_hold[0] = u
+            K.run(state, plant, eff, vib, pctrl, plant_dt, n, u_hold, 1 << 30, -1, pout)
+            vals[V_PHI] = state[K.S_PHI]
+            vals[V_OMEGA] = state[K.S_OMEGA]
+        phi = vals[V_PHI]
+        omega = vals[V_OMEGA]
+        mode = int(vals[V_MODE])
+        umax = vals[V_UMAX]
+        u_ff = 0.0
+        if ints[L.K_STREAK] >= ints[K_STREAK_LIMIT]:
+            ints[K_FAULT] = 1
+        if ints[K_FAULT] != 0 or mode == MODE_IDLE:
+            u = 0.0
+            phi_ref = phi  # a restart begins where the shaft is, not where it was
+            omega_ref = omega if mode == MODE_SCAN else 0.0
+        elif mode == MODE_POSITION:
+            phi_ref = vals[V_REF]
+            omega_ref = 0.0
+            u = robust_law(phi_ref - phi, -omega, vals[V_GP], vals[V_GD], vals[V_GR], vals[V_G0], umax)
+        else:
+            # Scanning: the speed reference ramps, the angle reference integrates it over the
+            # measured step, and slips beyond the allowed lag (anti-windup), as in the plant kernel.
+            target = 2.0 * math.pi * vals[V_REF]
+            ramp = 2.0 * math.pi * vals[V_ACCEL] * dt
+            omega_prev = omega_ref
+            if omega_ref < target:
+                omega_ref = min(omega_ref + ramp, target)
+            elif omega_ref > target:
+                omega_ref = max(omega_ref - ramp, target)
+            phi_ref += omega_ref * dt
+            lag = vals[V_MAXLAG]
+            if phi_ref - phi > lag or phi_ref - phi < -lag:
+                phi_ref = phi + math.copysign(lag, phi_ref - phi)
+            if vals[V_FF] != 0.0 and dt > 0.0:
+                alpha = (omega_ref - omega_prev) / dt
+                u_ff = K.feedforward(omega_ref, alpha, J, kv, kM, kb, R, ku, tc, tsv, v0)
+            lim = max(umax - abs(u_ff), 0.0)
+            eps = phi_ref - phi
+            u = robust_law(eps, omega_ref - omega, vals[V_GP], vals[V_GD], vals[V_GR], vals[V_G0], lim) + u_ff
+        vals[V_U] = u
+        vals[V_PHI_REF] = phi_ref
+        vals[V_OMEGA_REF] = omega_ref
+        vals[V_DT] = dt
+        row = ints[L.K_TICKS] % n_rec
+        rec[row, R_T] = (wake - start) / 1e9
+        rec[row, R_DT] = dt
+        rec[row, R_PHI] = phi
+        rec[row, R_OMEGA] = omega
+        rec[row, R_PHI_REF] = phi_ref
+        rec[row, R_OMEGA_REF] = omega_ref
+        rec[row, R_UFF] = u_ff
+        rec[row, R_U] = u
+        rec[row, R_LATE_US] = (wake - deadline) / 1e3
+        ints[L.K_TICKS] += 1  # published after the row is written: readers read rows < ticks
+        work = L.now_ns(ts) - wake
+        ints[L.K_WORK_NS] += work
+        if work > ints[L.K_WORK_MAX_NS]:
+            ints[L.K_WORK_MAX_NS] = work
+        if ints[L.K_MAX_TICKS] > 0 and ints[L.K_TICKS] >= ints[L.K_MAX_TICKS]:
+            break
+        deadline += period
+    vals[V_U] = 0.0  # a stopped loop commands nothing
+    ints[L.K_CPU_NS] += L.thread_cpu_ns(ts) - cpu0
+    ints[L.K_RUNNING] = 0
+
+
+@dataclass(frozen=True)
+class Realtime:
+    """What the thread asked the OS for and what it got, in plain words."""
+
+    sched_fifo: str
+    affinity: str
+    mlockall: str
+
+
+def request_realtime(priority: int = 80, cpu: int | None = None, lock: bool = True) -> Realtime:
+    """Call from the thread to be made real-time; each request that fails says why."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        fifo = f"granted (priority {priority})"
+    except (PermissionError, OSError) as exc:
+        fifo = f"refused: {exc.strerror or exc} (needs root or CAP_SYS_NICE / rtprio limit)"
+    allowed = sorted(os.sched_getaffinity(0))
+    target = allowed[-1] if cpu is None else cpu
+    try:
+        os.sched_setaffinity(0, {target})  # pid 0 = this thread on Linux
+        aff = f"granted (CPU {target} of {allowed})"
+    except OSError as exc:
+        aff = f"refused: {exc.strerror or exc} (CPU {target} not in {allowed})"
+    if not lock:
+        mem = "not requested"
+    else:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.mlockall(1 | 2) == 0:  # MCL_CURRENT | MCL_FUTURE: no page faults in the loop
+            mem = "granted (current and future pages)"
+        else:
+            err = ctypes.get_errno()
+            mem = f"refused: {os.strerror(err)} (needs CAP_IPC_LOCK or a larger `ulimit -l`)"
+    return Realtime(fifo, aff, mem)
+
+
+class Runner:
+    """The control thread and its shared arrays; SIL when built with `sil=True`."""
+
+    def __init__(
+        self,
+        setup: Setup,
+        *,
+        sil: bool = True,
+        period_s: float | None = None,
+        streak_limit: int = 50,
+        record: int = 65536,
+        realtime: bool = False,
+    ) -> None:
+        self.setup = setup
+        self.sil = sil
+        self.realtime = realtime
+        self.realtime_report: Realtime | None = None
+        self.ints = np.zeros(N_INTS, dtype=np.int64)
+        self.ints[L.K_PERIOD_NS] = round((setup.dt if period_s is None else period_s) * L.NS)
+        self.ints[K_STREAK_LIMIT] = streak_limit
+        self.vals = np.zeros(N_VALS)
+        self.vals[V_GP : V_G0 + 1] = setup.gains.as_tuple()
+        self.vals[V_UMAX] = setup.u_max
+        self.vals[V_ACCEL] = setup.scan_accel_rps2
+        self.vals[V_MAXLAG] = setup.max_lag_rad
+        self.vals[V_FF] = 1.0 if setup.scan_feedforward else 0.0
+        self.hist = np.zeros(L.N_BINS, dtype=np.int64)
+        self.rec = np.zeros((record, N_REC))
+        self.ts = np.zeros(2, dtype=np.int64)
+        self.state = np.zeros(K.N_STATE)
+        self.pctrl = setup.controller(K.MODE_OPEN, 0.0)
+        self.pctrl[K.C_DIV] = 1 << 30  # open loop: u_hold[0] for the whole call
+        self.u_hold = np.zeros(1)
+        self.pout = np.zeros((0, K.N_OUT))
+        self.plant_dt = setup.dt / setup.substeps
+        self.cpu_s = 0.0
+        self._thread: threading.Thread | None = None
+        if sil:  # seed the plant's vibration once; per-tick calls pass seed -1
+            K.run(
+                self.state,
+                setup.plant,
+                setup.effects,
+                setup.vibration,
+                self.pctrl,
+                self.plant_dt,
+                0,
+                self.u_hold,
+                1,
+                setup.seed,
+                self.pout,
+            )
+
+    # --- I/O side -------------------------------------------------------------------------------
+    def position(self, ref_rad: float) -> None:
+        self.vals[V_REF] = ref_rad
+        self.vals[V_MODE] = MODE_POSITION
+
+    def scan(self, rps: float) -> None:
+        self.vals[V_REF] = rps
+        self.vals[V_MODE] = MODE_SCAN
+
+    def idle(self) -> None:
+        self.vals[V_MODE] = MODE_IDLE
+
+    def measured(self, phi: float, omega: float) -> None:
+        """Hardware mode: the I/O side writes the latest encoder angle and speed."""
+        self.vals[V_PHI] = phi
+        self.vals[V_OMEGA] = omega
+
+    @property
+    def fault(self) -> bool:
+        return bool(self.ints[K_FAULT])
+
+    def clear_fault(self) -> None:
+        self.ints[L.K_STREAK] = 0
+        self.ints[K_FAULT] = 0
+
+    @property
+    def command(self) -> float:
+        return float(self.vals[V_U])
+
+    @property
+    def ticks(self) -> int:
+        return int(self.ints[L.K_TICKS])
+
+    def stats(self) -> L.Jitter:
+        return L.jitter(self.ints, self.hist)
+
+    def recent(self, n: int | None = None) -> np.ndarray:
+        """The last n recorded ticks, oldest first (a copy)."""
+        ticks, size = self.ticks, self.rec.shape[0]
+        n = min(ticks, size) if n is None else min(n, ticks, size)
+        idx = np.arange(ticks - n, ticks) % size
+        return self.rec[idx].copy()
+
+    # --- lifecycle --------------------------------------------------------------------------------
+    def start(self, max_ticks: int = 0) -> None:
+        if self._thread is not None and self._thread.is_alive():
+            raise RuntimeError("control loop already running")
+        self.ints[L.K_STOP] = 0
+        self.ints[L.K_MAX_TICKS] = max_ticks
+        self._thread = threading.Thread(target=self._main, name="tvsd-control", daemon=True)
+        self._thread.start()
+
+    def _main(self) -> None:
+        if self.realtime:
+            self.realtime_report = request_realtime()
+        cpu0 = time.thread_time()
+        s = self.setup
+        control_loop(
+            self.ints,
+            self.vals,
+            self.hist,
+            L.EDGES_NS,
+            self.rec,
+            self.ts,
+            self.sil,
+            self.state,
+            s.plant,
+            s.effects,
+            s.vibration,
+            self.pctrl,
+            self.u_hold,
+            self.pout,
+            self.plant_dt,
+        )
+        self.cpu_s = time.thread_time() - cpu0
+
+    def stop(self, timeout: float = 1.0) -> None:
+        self.ints[L.K_STOP] = 1
+        self.join(timeout)
+
+    def join(self, timeout: float | None = None) -> None:
+        if self._thread is not None:
+            self._thread.join(timeout)
+            if self._thread.is_alive():
+                raise TimeoutError(f"control loop did not stop within {timeout} s")
