@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from tvsd.cli.imu import dominant_line, run_capture, sa_alpha
-from tvsd.hw.imu_reader import ImuReader, MonotonicClock, SensorReader
+from tvsd.hw.imu_clock import MonotonicClock
+from tvsd.hw.imu_reader import ImuReader, SensorReader
 from tvsd.hw.mpu6050 import FRAME_BYTES, GENUINE_ID, ImuSettings, Mpu6050, bus_budget
 
 BUS = int(os.environ.get("TVSD_IMU_BUS", "1"))

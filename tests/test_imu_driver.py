@@ -10,7 +10,7 @@ import pytest
 
 from tvsd.errors import EXIT_UNAVAILABLE, DeviceError, UsageError
 from tvsd.hw import mpu6050 as reg
-from tvsd.hw.imu_reader import ManualClock
+from tvsd.hw.imu_clock import ManualClock
 from tvsd.hw.mpu6050 import (
     AngularAccelerationStream,
     ImuSettings,

@@ -9,7 +9,8 @@ import numpy as np
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from tvsd.hw.imu_reader import ImuReader, ManualClock, SensorReader
+from tvsd.hw.imu_clock import ManualClock
+from tvsd.hw.imu_reader import ImuReader, SensorReader
 from tvsd.hw.mpu6050 import ImuSettings, Mpu6050
 from tvsd.sim.mpu6050 import Fault, decode_counter, sil_pair
 

@@ -8,14 +8,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from tvsd.hw.imu_reader import (
-    ImuBatch,
-    ImuReader,
-    ManualClock,
-    MonotonicClock,
-    SensorReader,
-    asyncio_sink,
-)
+from tvsd.hw.imu_clock import ManualClock, MonotonicClock
+from tvsd.hw.imu_reader import ImuBatch, ImuReader, SensorReader, asyncio_sink
 from tvsd.hw.mpu6050 import ImuSettings, Mpu6050
 from tvsd.sim.imu_motion import SyntheticParams, synthetic_pair
 from tvsd.sim.mpu6050 import Fault, decode_counter, sil_pair

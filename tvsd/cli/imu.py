@@ -29,7 +29,8 @@ import numpy as np
 
 from tvsd.errors import EXIT_OK, DataFileError, DeviceError, UsageError
 from tvsd.hw import imu_calibration as cal
-from tvsd.hw.imu_reader import Clock, ImuReader, ManualClock, MonotonicClock, SensorReader
+from tvsd.hw.imu_clock import Clock, ManualClock, MonotonicClock
+from tvsd.hw.imu_reader import ImuReader, SensorReader
 from tvsd.hw.mpu6050 import DLPF_DELAY_S, SA_AXES, ImuSettings, Mpu6050, SMBusLike, angular_acceleration
 from tvsd.hw.mpu6050 import bus_budget as _bus_budget
 from tvsd.sim.imu_motion import ArrayMotion, MotionSource, SyntheticParams, synthetic_pair

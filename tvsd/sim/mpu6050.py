@@ -31,7 +31,7 @@ import numpy as np
 from scipy.signal import butter, sosfilt, sosfilt_zi
 
 from tvsd.hw import mpu6050 as reg
-from tvsd.hw.imu_reader import Clock
+from tvsd.hw.imu_clock import Clock
 from tvsd.sim.imu_motion import MotionSource
 
 GYRO_NOISE_DPS_RTHZ = 0.005  # rate noise spectral density (datasheet)
