@@ -145,3 +145,19 @@ def test_bad_effects_say_what_was_wrong(text, needle):
 def test_an_effect_given_twice_is_refused():
     with pytest.raises(UsageError, match="given twice"):
         parse_effects(["deadzone:u0=1", "deadzone:u0=2"])
+
+
+def test_a_run_split_across_calls_equals_one_call(cfg):
+    """A caller stepping the plant tick by tick (control thread, MCU bridge) keeps time-based
+    effects and the delay ring continuous through the state array (tvsd.model.plant.state_array)."""
+    from tvsd.model import plant as K
+
+    setup = _setup(cfg, "resonance:frequency_hz=37,amplitude=3e-5", "delay:delay_s=0.0023")
+    u = np.where(np.arange(400) >= 50, 5.0, 0.0)
+    whole = K.state_array(setup.dt)
+    one = runs.open_loop(setup, u, state=whole)
+    split_state = K.state_array(setup.dt)
+    parts = [runs.open_loop(setup, u[a : a + 100], state=split_state) for a in range(0, 400, 100)]
+    joined = np.concatenate([p.omega for p in parts])
+    assert np.array_equal(np.concatenate([p.u_applied for p in parts]), one.u_applied)
+    assert np.allclose(joined, one.omega, rtol=0, atol=1e-12)

@@ -36,8 +36,18 @@ MODE_OPEN, MODE_POSITION, MODE_SCAN = 0, 1, 2
 O_T, O_U, O_UAPP, O_PHI, O_OMEGA, O_I, O_Z, O_OMEGA_MEAN, O_DIST_MEAN, O_PHI_REF, O_U_MEAN = range(11)
 N_OUT = 11
 # State array layout (initial state in, final state out).
-S_PHI, S_OMEGA, S_I, S_Z, S_NOISE = range(5)
-N_STATE = 5
+# S_TIME (plant time at the start of the next call) and S_RING_POS (the delay ring's write
+# position) carry a run across calls: a caller that steps the plant tick by tick (the control
+# thread, the MCU bridge) keeps fixed-frequency effects continuous and, with state_array(),
+# the delay ring in the state itself, so a call allocates nothing.
+S_PHI, S_OMEGA, S_I, S_Z, S_NOISE, S_TIME, S_RING_POS = range(7)
+N_STATE = 7
+MAX_DELAY_S = 0.1  # the effects library's largest delay_s
+
+
+def state_array(dt: float) -> np.ndarray:
+    """A state with room for the delay ring of any delay the effects library allows."""
+    return np.zeros(N_STATE + int(MAX_DELAY_S / dt) + 2)
 
 
 @njit(cache=True, nogil=True)
@@ -177,12 +187,17 @@ def run(
     dt_ctrl = dt * div
     ctrl_countdown = 1
 
-    # Transport delay: a ring of past commands, read with linear interpolation.
+    # Transport delay: a ring of past commands (in the state when it has room, so it persists
+    # across calls and costs no allocation), read with linear interpolation.
     delay_steps = eff[E.E_DELAY] / dt
     n_ring = int(delay_steps) + 2
-    ring = np.zeros(n_ring)
+    has_room = state.shape[0] >= N_STATE + n_ring
+    ring = state[N_STATE : N_STATE + n_ring] if has_room else np.zeros(n_ring)
     whole = int(delay_steps)
     frac = delay_steps - whole
+    delayed = n_ring > 2 or frac > 0.0
+    pos = int(state[S_RING_POS]) % n_ring
+    t0 = state[S_TIME]
 
     phi, omega, cur, z = state[S_PHI], state[S_OMEGA], state[S_I], state[S_Z]
     accel = state[S_NOISE]
@@ -198,11 +213,11 @@ def run(
     u = 0.0
     u_app = 0.0
     for k in range(n_steps):
-        t = k * dt
-        # Parameters that drift move linearly over the run.
+        t = t0 + k * dt
+        # Parameters that drift move linearly over this call's run.
         J, kv, kM, kb, R, tc, ts = J0, kv0, kM0, kb0, R0, tc0, ts0
         if drift_param >= 0:
-            f = 1.0 + drift_rel * t / duration
+            f = 1.0 + drift_rel * (k * dt) / duration
             if drift_param == 0:
                 kv = kv0 * f
             elif drift_param == 1:
@@ -242,14 +257,10 @@ def run(
                 u = robust_law(eps, omega_ref - omega, Gp, Gd, Gr, G0, max(umax - abs(u_ff), 0.0)) + u_ff
 
         # Drive: delay, then dead zone and saturation.
-        if n_ring > 2 or frac > 0.0:
-            ring[k % n_ring] = u
-            if k >= whole + 1:
-                u_del = (1.0 - frac) * ring[(k - whole) % n_ring] + frac * ring[(k - whole - 1) % n_ring]
-            elif k >= whole:
-                u_del = (1.0 - frac) * ring[(k - whole) % n_ring]
-            else:
-                u_del = 0.0
+        if delayed:  # the ring starts at zero: no command before the run
+            j = pos + k
+            ring[j % n_ring] = u
+            u_del = (1.0 - frac) * ring[(j - whole) % n_ring] + frac * ring[(j - whole - 1) % n_ring]
         else:
             u_del = u
         u_app = _drive_output(u_del, eff)
@@ -336,7 +347,7 @@ def run(
         countdown -= 1
         if countdown == 0 and row < out.shape[0]:
             countdown = decim
-            out[row, O_T] = (k + 1) * dt
+            out[row, O_T] = t0 + (k + 1) * dt
             out[row, O_U] = u
             out[row, O_UAPP] = u_app
             out[row, O_PHI] = phi
@@ -353,4 +364,6 @@ def run(
             row += 1
 
     state[S_PHI], state[S_OMEGA], state[S_I], state[S_Z], state[S_NOISE] = phi, omega, cur, z, accel
+    state[S_TIME] = t0 + n_steps * dt
+    state[S_RING_POS] = (pos + n_steps) % n_ring
     return slips
