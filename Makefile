@@ -17,11 +17,11 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/pip install --quiet -e '.[test]'
 	touch $@
 
-# The main job. Until the daemon lands, a spin-up of the simulated scanning aperture to
-# 25 rev/s with the once-per-revolution imbalance on: a table, and a plot in run-spin.png.
+# The main job: tvsd on the simulated plant, in the foreground: spins the scanning aperture to
+# 25 rev/s, scans the simulated scene and prints a status line per second until Ctrl-C.
+# Drive it from another terminal: TVSD_SOCKET=.run/tvsd.sock .venv/bin/tvsctl status
 run: $(STAMP)
-	$(BIN)/tvsctl sim spin --rps 25 --seconds 10 --effect imbalance:amplitude=1e-4,phase=0.5 \
-		--plot run-spin.png
+	$(BIN)/tvsd --sil --demo --status-lines --socket .run/tvsd.sock --data-dir .run/data
 
 system-deps:
 	scripts/install-system-deps.sh
@@ -42,5 +42,5 @@ bench: $(STAMP)
 	$(BIN)/tvsctl bench
 
 clean:
-	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache run-spin.png
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache .run
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from tvsd.daemon.can_settings import CanSettings
 from tvsd.errors import ConfigError, UsageError
 from tvsd.scan.settings import ScanSettings
 from tvsd.schema import Where, build, load_yaml, option
@@ -73,6 +74,14 @@ class ControlConfig:
         1.65, doc="Δv_max for condition (23), paper's largest measured value", unit="rad/s²", ge=0
     )
     scan_accel_rps2: float = option(10.0, doc="speed-reference ramp in scanning mode", unit="rev/s²", gt=0)
+    overrun_streak_ms: float = option(
+        100.0,
+        doc="late ticks in a row for this long put the drive in its safe state (a shared machine stalls "
+        "for ms at times; the MCU's watchdog cuts at 200 ms)",
+        unit="ms",
+        gt=0,
+        le=1000,
+    )
     scan_feedforward: bool = option(
         True, doc="scanning mode adds the model's steady voltage to the law's output (README)"
     )
@@ -161,6 +170,7 @@ class Config:
     reproduction: Reproduction | None = option(None, doc="paper figures to reproduce")
     scan: ScanSettings = option(ScanSettings(), doc="scan pipeline (baseline from geometry)")
     imu: ImuConfig = option(ImuConfig(), doc="the two MPU6050s")
+    can: CanSettings = option(CanSettings(), doc="CAN bridge to a robot (off by default)")
 
     @property
     def sil_or_default(self) -> SilConfig:

@@ -25,6 +25,7 @@ COMMANDS: dict[str, str] = {
     "mcu": "tvsd.cli.mcu",
     "export": "tvsd.cli.export",
     "latency": "tvsd.cli.latency",
+    "daemon": "tvsd.cli.daemon_cmds",  # status, speed, scan, aim, gains, record, faults, points, shutdown
 }
 
 

@@ -18,8 +18,9 @@ safe state (K_FAULT = 1, command 0) until the I/O side clears K_FAULT.
 
 SIL: the plant kernel (tvsd.model.plant.run, open loop) is stepped inside the same loop by the
 real elapsed time with the command held since the previous tick, so the simulated scanner runs in
-real time. Its time-dependent effects (resonance, drift, delay) restart at each call, so in the
-runner only the state-dependent effects and the vibration are faithful.
+real time. Its state (tvsd.model.plant.state_array) carries the plant's time and delay ring across
+ticks, so fixed-frequency effects and the delay stay continuous and a tick allocates nothing; a
+`drift` effect runs over each call, not over the session.
 """
 
 from __future__ import annotations

@@ -1,28 +1,57 @@
 """`tvsd`: the scanner daemon's entry point.
 
-The asyncio daemon (control thread, JSON-RPC socket, recorder, systemd notify) is issue 6. Until it
-lands, `tvsd --check` validates a config and prints the gain conditions, which is what an operator
-needs before starting the scanner; without --check it says plainly that the daemon is not built yet.
+    tvsd [--config FILE] [--socket PATH] [--data-dir DIR] [--sil] [--demo] [--status-lines]
+    tvsd --check [--config FILE]
+
+This build runs on the SIL plant (`--sil`): the hardware backends (MPU6050 reader, MCU link) exist
+(tvsd/hw) and are wired into the daemon next (issue 6). `--demo` spins to 25 rev/s and scans, as
+`make run` shows; `--status-lines` prints one status line per second (foreground use).
+SIGTERM and SIGINT stop it in order (tvsd.daemon.app).
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
+import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tvsd import __version__
-from tvsd.errors import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, TvsdError
+from tvsd.errors import EXIT_OK, EXIT_USAGE, TvsdError
+
+if TYPE_CHECKING:
+    from tvsd.config import Config
+    from tvsd.daemon.app import Daemon
+
+DEFAULT_SOCKET = Path("/run/tvsd/tvsd.sock")
+DEFAULT_DATA = Path("/var/lib/tvsd")
+DEMO_RPS = 25.0
+
+
+def parse(argv: Sequence[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="tvsd", description="TVS scanner daemon")
+    p.add_argument("--version", action="version", version=f"tvsd {__version__}")
+    p.add_argument("--config", type=Path, help="scanner config (default: config/tvsd.yaml)")
+    p.add_argument(
+        "--check", action="store_true", help="validate the config, print the gain conditions, exit"
+    )
+    p.add_argument(
+        "--socket", type=Path, default=DEFAULT_SOCKET, help=f"API socket (default {DEFAULT_SOCKET})"
+    )
+    p.add_argument("--data-dir", type=Path, default=DEFAULT_DATA, help=f"recordings (default {DEFAULT_DATA})")
+    p.add_argument("--sil", action="store_true", help="run on the simulated plant and devices")
+    p.add_argument("--demo", action="store_true", help=f"spin to {DEMO_RPS:g} rev/s and scan after start")
+    p.add_argument("--status-lines", action="store_true", help="print a status line every second")
+    p.add_argument("--realtime", action="store_true", help="ask for SCHED_FIFO, affinity, mlockall")
+    return p.parse_args(argv)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="tvsd", description="TVS scanner daemon")
-    parser.add_argument("--version", action="version", version=f"tvsd {__version__}")
-    parser.add_argument("--config", type=Path, help="scanner config (default: config/tvsd.yaml)")
-    parser.add_argument("--check", action="store_true", help="validate the config and exit")
-    args = parser.parse_args(argv)
-    from tvsd.config import load_config
+    args = parse(argv)
+    from tvsd.config import config_dir, load_config
     from tvsd.control.conditions import check_gains
 
     try:
@@ -30,17 +59,68 @@ def main(argv: Sequence[str] | None = None) -> int:
     except TvsdError as exc:
         print(f"tvsd: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    conds = check_gains(cfg.control.gains, cfg.plant, cfg.control.disturbance_bound_rad_s2)
-    for c in conds:
-        print(f"gain condition {c.name} {'holds' if c.holds else 'DOES NOT hold'}: {c.text}")
+    for c in check_gains(cfg.control.gains, cfg.plant, cfg.control.disturbance_bound_rad_s2):
+        if args.check or not c.holds:
+            print(
+                f"gain condition {c.name} {'holds' if c.holds else 'DOES NOT hold'}: {c.text}",
+                file=sys.stderr,
+            )
     if args.check:
         print(f"config ok: plant '{cfg.plant.name}', loop {cfg.control.rate_hz:g} Hz")
         return EXIT_OK
-    print(
-        "tvsd: the daemon itself is not built yet (issue 6); use `tvsctl sim` for the simulator",
-        file=sys.stderr,
+    if not args.sil:
+        print(
+            "tvsd: this build drives the simulated plant only; the hardware backends (tvsd/hw) are "
+            "wired into the daemon next (issue 6): run `tvsd --sil`",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    config_path = args.config or config_dir() / "tvsd.yaml"
+    try:
+        args.data_dir.mkdir(parents=True, exist_ok=True)
+        args.socket.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(
+            f"tvsd: cannot create {exc.filename}: {exc.strerror}; give --data-dir / --socket "
+            "in a writable place",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    try:
+        return asyncio.run(_serve(args, cfg, config_path.read_text(encoding="utf-8")))
+    except TvsdError as exc:
+        print(f"tvsd: {exc}", file=sys.stderr)
+        return exc.exit_status
+
+
+async def _serve(args: argparse.Namespace, cfg: Config, config_text: str) -> int:
+    from tvsd.daemon.app import Daemon
+
+    daemon = Daemon(
+        cfg,
+        args.socket,
+        args.data_dir,
+        realtime=args.realtime,
+        out=(lambda line: print(line, flush=True)) if args.status_lines else None,
+        config_text=config_text,
     )
-    return EXIT_FAILURE
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, daemon.request_stop)
+    demo = loop.create_task(_demo(daemon)) if args.demo else None
+    await daemon.run()
+    if demo is not None:
+        demo.cancel()
+    print("tvsd: stopped (motor ramped down, recorder closed, socket removed)", file=sys.stderr)
+    return EXIT_OK
+
+
+async def _demo(daemon: Daemon) -> None:
+    await asyncio.sleep(0.5)
+    await daemon.api_speed(DEMO_RPS)
+    while abs(daemon.measured_rps - DEMO_RPS) > 0.5:
+        await asyncio.sleep(0.2)
+    await daemon.api_scan_start()
 
 
 if __name__ == "__main__":

@@ -1,0 +1,157 @@
+"""tvsd end to end: a real daemon process on the SIL plant, driven over its real socket.
+
+No timing is asserted (DESIGN.md): waits are bounded generously (the first start compiles the
+numba kernels, ≈ 3–10 s on a loaded 2-core machine) and only outcomes are checked.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tvsd.recording import read as read_recording
+
+START_S = 60.0  # first start compiles the control kernel; later starts load it from the cache
+
+
+def tvsctl(sock: Path, *argv: str, check: bool = True) -> subprocess.CompletedProcess[str]:
+    proc = subprocess.run(
+        [sys.executable, "-m", "tvsd.cli.main", *argv, "--socket", str(sock)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    if check:
+        assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+def status(sock: Path) -> dict:
+    return json.loads(tvsctl(sock, "status", "--json").stdout)
+
+
+def wait_for(predicate, timeout: float, what: str) -> None:  # type: ignore[no-untyped-def]
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.2)
+    raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+
+
+@pytest.fixture
+def daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path, Path]]:
+    sock, data = tmp_path / "run" / "tvsd.sock", tmp_path / "data"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tvsd.daemon.main", "--sil", "--socket", str(sock), "--data-dir", str(data)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        wait_for(lambda: sock.exists() or proc.poll() is not None, START_S, "the daemon's socket")
+        assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+        yield proc, sock, data
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(10)
+
+
+def test_status_has_the_promised_shape_and_the_socket_is_0660(daemon):
+    _, sock, _ = daemon
+    s = status(sock)
+    assert {"state", "rps", "loop", "imu", "link", "faults"} <= s.keys()
+    assert {"rate_hz", "missed_ticks", "jitter_p99_us"} <= s["loop"].keys()
+    assert s["state"] == "idle" and s["faults"] == []
+    assert oct(sock.stat().st_mode & 0o777) == "0o660"
+
+
+def test_spin_scan_points_record_export_and_orderly_stop(daemon, tmp_path):
+    proc, sock, data = daemon
+    tvsctl(sock, "speed", "20")
+    wait_for(lambda: abs(status(sock)["rps"] - 20) < 0.5, 30, "20 rev/s")
+    tvsctl(sock, "record", "start")
+    tvsctl(sock, "scan", "start")
+    points = tvsctl(sock, "points", "--count", "3", "--json")
+    rows = [json.loads(line) for line in points.stdout.splitlines() if line.strip()]
+    assert len(rows) == 3 and all({"x", "y", "z"} <= r.keys() for r in rows)
+    wait_for(lambda: status(sock)["points"]["per_s"] > 5, 15, "a point stream at the rotation rate")
+    tvsctl(sock, "record", "stop")
+    recs = list(data.iterdir())
+    assert len(recs) == 1
+    out = tmp_path / "rec.csv"
+    exported = subprocess.run(
+        [sys.executable, "-m", "tvsd.cli.main", "export", str(recs[0]), "--csv", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    if exported.returncode == 0:
+        rec = read_recording(out)
+        assert rec.sample_rate_hz == pytest.approx(1000, rel=0.01) and abs(rec.omega[-1] / 6.2832 - 20) < 1
+    else:
+        # A stall of the shared machine longer than a 1 ms bin leaves a gap (DESIGN.md: ms stalls
+        # happen); export then refuses with its documented one-line message, exit 2.
+        assert exported.returncode == 2 and "samples missing" in exported.stderr
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(20) == 0
+    assert not sock.exists()
+    assert "stopped" in (proc.stderr.read() if proc.stderr else "")
+
+
+def test_bad_requests_get_errors_and_the_daemon_stays_up(daemon):
+    _, sock, _ = daemon
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+        s.connect(str(sock))
+        s.settimeout(10)
+        f = s.makefile("rwb")
+        for line, code in (
+            (b"{not json\n", -32700),
+            (b'{"jsonrpc":"2.0","id":1,"method":"frobnicate"}\n', -32601),
+            (b'{"jsonrpc":"2.0","id":2,"method":"speed","params":{"rps":"fast"}}\n', -32602),
+            (b'{"jsonrpc":"2.0","id":3,"method":"speed","params":{"rps":1e9}}\n', -32602),
+        ):
+            f.write(line)
+            f.flush()
+            reply = json.loads(f.readline())
+            assert reply["error"]["code"] == code
+    assert status(sock)["state"] == "idle"
+    refused = tvsctl(sock, "scan", "start", check=False)  # not spinning: refused with the fix
+    assert refused.returncode != 0 and "set a speed first" in refused.stderr
+
+
+def test_shutdown_over_the_api(daemon):
+    proc, sock, _ = daemon
+    tvsctl(sock, "shutdown")
+    assert proc.wait(20) == 0 and not sock.exists()
+
+
+def test_tvsctl_without_a_daemon_says_so_with_exit_3(tmp_path):
+    proc = tvsctl(tmp_path / "none.sock", "status", check=False)
+    assert proc.returncode == 3 and "not running" in proc.stderr and proc.stderr.count("\n") == 1
+
+
+def test_kill_9_during_recording_reads_back(daemon, tmp_path):
+    proc, sock, data = daemon
+    tvsctl(sock, "speed", "10")
+    tvsctl(sock, "record", "start")
+    time.sleep(3.0)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(10)
+    from tvsd.daemon.recorder import LOOP_CHANNEL, open_recording
+
+    rec = open_recording(next(data.iterdir()))
+    loop = rec.channels[LOOP_CHANNEL]
+    # 3 s recorded at 1 kHz; the recorder loses at most its 0.2 s flush interval and the daemon's
+    # 0.1 s drain period: at least 2 s of samples must be there.
+    assert len(loop) >= 2000

@@ -1,0 +1,153 @@
+"""tvsctl commands that talk to the running daemon: thin clients of its JSON-RPC socket.
+
+Each command maps to the daemon method of the same name (``scan start`` → ``scan_start``, ...),
+takes --socket PATH (else $TVSD_SOCKET, else /run/tvsd/tvsd.sock) and --json, and prints an aligned
+table by default.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+from tvsd.cli.client import DEFAULT_SOCKET, ENV_SOCKET, RpcClient, socket_path
+from tvsd.cli.output import print_json, print_pairs, print_table
+from tvsd.errors import EXIT_OK, UsageError
+
+GAIN_NAMES = ("Gp", "Gd", "Gr", "G0")
+
+_SOCKET_HELP = f"daemon socket (default: ${ENV_SOCKET}, else {DEFAULT_SOCKET})"
+
+Runner = Callable[[argparse.Namespace, RpcClient], object]
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--socket", type=Path, metavar="PATH", help=_SOCKET_HELP)
+    common.add_argument("--json", action="store_true", help="print one JSON object")
+
+    def add(name: str, help_: str, run: Runner) -> argparse.ArgumentParser:
+        p = sub.add_parser(name, help=help_, parents=[common])
+        p.set_defaults(func=lambda args: _run(args, run))
+        return p
+
+    add("status", "state of the running daemon", lambda a, c: c.call("status"))
+    p = add("speed", "set the motor speed", lambda a, c: c.call("speed", rps=a.rps))
+    p.add_argument("rps", type=float, help="rev/s")
+    p = add("scan", "start or stop scanning", lambda a, c: c.call(f"scan_{a.action}"))
+    p.add_argument("action", choices=("start", "stop"))
+    p = add("aim", "aim the laser at angles or at a point", _aim)
+    p.add_argument("--phi-deg", type=float, metavar="DEG", help="azimuth φ, degrees (with --gamma-deg)")
+    p.add_argument("--gamma-deg", type=float, metavar="DEG", help="elevation γ, degrees (with --phi-deg)")
+    p.add_argument("--xyz", type=float, nargs=3, metavar=("X", "Y", "Z"), help="target point, m")
+    p = add("gains", "show the controller gains, or set them", _gains)
+    p.add_argument("--set", metavar="Gp,Gd,Gr,G0", help="four numbers separated by commas")
+    p = add("record", "start or stop recording", lambda a, c: c.call(f"record_{a.action}"))
+    p.add_argument("action", choices=("start", "stop"))
+    p = add("faults", "list the faults, or clear them", _faults)
+    p.add_argument("--clear", action="store_true", help="clear the faults")
+    p = add("points", "print points of the live point stream", _points)
+    p.add_argument("--count", type=int, default=10, metavar="N", help="points to print (default 10)")
+    add("shutdown", "stop the daemon", lambda a, c: c.call("shutdown"))
+
+
+def _run(args: argparse.Namespace, run: Runner) -> int:
+    with RpcClient(socket_path(args.socket)) as client:
+        result = run(args, client)
+    if result is not None:
+        show(result, as_json=args.json)
+    return EXIT_OK
+
+
+def _aim(args: argparse.Namespace, client: RpcClient) -> object:
+    angles = (args.phi_deg, args.gamma_deg)
+    if args.xyz is not None and angles == (None, None):
+        x, y, z = args.xyz
+        return client.call("aim_xyz", x=x, y=y, z=z)
+    if args.xyz is None and None not in angles:
+        return client.call("aim", phi_deg=args.phi_deg, gamma_deg=args.gamma_deg)
+    raise UsageError("aim: give --phi-deg DEG and --gamma-deg DEG together, or --xyz X Y Z (not both)")
+
+
+def parse_gains(text: str) -> dict[str, float]:
+    """'Gp,Gd,Gr,G0' → the four gains by name; UsageError saying what was wrong."""
+    parts = [s.strip() for s in text.split(",")]
+    if len(parts) != len(GAIN_NAMES):
+        raise UsageError(
+            f"--set {text!r}: give four numbers Gp,Gd,Gr,G0 (e.g. --set 40,1.2,0.5,0), got {len(parts)}"
+        )
+    gains: dict[str, float] = {}
+    for name, part in zip(GAIN_NAMES, parts, strict=True):
+        try:
+            value = float(part)
+        except ValueError:
+            raise UsageError(f"--set {text!r}: {name} is {part!r}, not a number") from None
+        if not math.isfinite(value):
+            raise UsageError(f"--set {text!r}: {name} is {part!r}; give a finite number")
+        gains[name] = value
+    return gains
+
+
+def _gains(args: argparse.Namespace, client: RpcClient) -> object:
+    if args.set is None:
+        return client.call("gains_get")
+    return client.call("gains_set", **parse_gains(args.set))
+
+
+def _faults(args: argparse.Namespace, client: RpcClient) -> object:
+    return client.call("faults_clear" if args.clear else "faults_list")
+
+
+def _points(args: argparse.Namespace, client: RpcClient) -> None:
+    if args.count < 1:
+        raise UsageError(f"--count {args.count}: give at least 1")
+    left = args.count
+    for params in client.subscribe("points"):
+        for point in params if isinstance(params, list) else [params]:  # one point or a batch
+            _show_line(point, as_json=args.json)
+            left -= 1
+            if left == 0:
+                return
+
+
+def _show_line(item: object, *, as_json: bool) -> None:
+    if as_json or not isinstance(item, Mapping):
+        print(json.dumps(item), flush=True)
+    else:
+        print("  ".join(f"{k}={_fmt(v)}" for k, v in item.items()), flush=True)
+
+
+def _fmt(value: object) -> str:
+    return f"{value:.6g}" if isinstance(value, float) else str(value)
+
+
+def flatten(obj: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested objects as dotted keys, for a two-column table."""
+    out: dict[str, Any] = {}
+    for k, v in obj.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, Mapping) and v:
+            out.update(flatten(v, key + "."))
+        else:
+            out[key] = json.dumps(v) if isinstance(v, (list, Mapping)) else v
+    return out
+
+
+def show(result: object, *, as_json: bool) -> None:
+    """Print a method's result: as one JSON object with --json, else as a table."""
+    if as_json:
+        print_json(result if isinstance(result, Mapping) else {"result": result})
+    elif isinstance(result, Mapping):
+        if result:
+            print_pairs(flatten(result))
+    elif isinstance(result, list) and result and all(isinstance(r, Mapping) for r in result):
+        keys = list(dict.fromkeys(k for r in result for k in r))
+        print_table([[r.get(k, "") for k in keys] for r in result], keys)
+    elif isinstance(result, list) and not result:
+        print("(none)")
+    else:
+        print(result)
