@@ -14,7 +14,7 @@ BASE = 250e-6  # one-way USB-serial delay (s), equal both ways: asymmetry is uno
 JITTER = 100e-6  # mean of the exponential extra delay on each leg (s)
 
 
-def synth(n: int, drift_ppm: float | np.ndarray, seed: int = 0, outliers: float = 0.1):  # type: ignore[no-untyped-def]
+def synth(n: int, drift_ppm: float | np.ndarray, seed: int = 0, outliers: float = 0.1):
     """Round trips: host send/recv, MCU ticks at the true MCU event, and the true event time."""
     rng = np.random.default_rng(seed)
     t_send = 1000.0 + PERIOD * np.arange(n)
@@ -35,12 +35,12 @@ def synth(n: int, drift_ppm: float | np.ndarray, seed: int = 0, outliers: float 
     return t_send, t_send + up + down, ticks, t_event
 
 
-def feed(sync: ClockSync, data) -> None:  # type: ignore[no-untyped-def]
+def feed(sync: ClockSync, data) -> None:
     for s, r, k in zip(data[0], data[1], data[2], strict=True):
         sync.add(float(s), float(r), int(k))
 
 
-def kept_error_bound(data, settings: ClockSettings) -> tuple[float, float, float]:  # type: ignore[no-untyped-def]
+def kept_error_bound(data, settings: ClockSettings) -> tuple[float, float, float]:
     """(worst-case time error of the fit at the last sample (s), its 1-sigma statistical error (s),
     1-sigma slope error (ppm)).
 
@@ -64,7 +64,7 @@ def kept_error_bound(data, settings: ClockSettings) -> tuple[float, float, float
     return float(np.abs(w).sum() * e), float(sigma * np.sqrt((w**2).sum())), float(slope_sigma_ppm)
 
 
-def _mid_err(data, settings: ClockSettings) -> np.ndarray:  # type: ignore[no-untyped-def]
+def _mid_err(data, settings: ClockSettings) -> np.ndarray:
     s, r, _, te = (np.asarray(a)[-settings.window :] for a in data)
     return (s + r) / 2 - te
 

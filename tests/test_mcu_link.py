@@ -15,7 +15,7 @@ import pytest
 
 from tvsd.errors import ConfigError, DeviceError, ProtocolError, UsageError
 from tvsd.hw.mcu.framing import Frame, FrameDecoder, encode_frame
-from tvsd.hw.mcu.link import LinkSettings, McuLink, PulseEvent, StateSample
+from tvsd.hw.mcu.link import LinkSettings, McuLink, PulseEvent, Refusal, StateSample
 from tvsd.hw.mcu.spec import load_spec
 
 SPEC = load_spec()
@@ -283,7 +283,7 @@ def test_corruption_is_counted_and_link_stays_up() -> None:
                 else:
                     n += 1
                 if k % 50 == 0:
-                    wire = b"\x00\xff\x13" + wire  # line noise before a good frame
+                    wire = bytearray(b"\x00\xff\x13") + wire  # line noise before a good frame
                 os.write(fake.master, bytes(wire))
             await wait_for(lambda: link.stats().frames_rx >= 1 + n)
             st = link.stats()
@@ -361,7 +361,7 @@ def test_nan_duty_is_zero_and_out_of_range_is_clamped() -> None:
 
 def test_refusal_names_the_frame_by_its_seq() -> None:
     async def main() -> None:
-        refused = []
+        refused: list[Refusal] = []
         async with pty_link(on_refused=refused.append) as (link, fake):
             link.send_laser(True)
             link.send_stepper_move(1, -250, 400, 800)
@@ -444,3 +444,48 @@ def test_settings_are_checked() -> None:
         LinkSettings(port="/dev/x", link_timeout_s=0)
     with pytest.raises(ConfigError, match="tx_buffer_bytes must be >= 38"):
         LinkSettings(port="/dev/x", tx_buffer_bytes=10)
+
+
+def test_states_before_the_first_ack_are_held_then_placed_exactly() -> None:
+    # State frames flow from power-on; before the first heartbeat_ack their 16-bit stamps have
+    # no epoch. They are held, placed by the ack, and delivered exact: no sample with raw
+    # ticks, no jump of a multiple of 65536 when the ack comes.
+    async def main() -> None:
+        got: list[StateSample] = []
+        async with pty_link(on_state=got.append) as (link, fake):
+            await link.identify()
+            t = 5_000_000  # the MCU's count; the host has not seen any of it yet
+            for i in range(60):  # 60 frames 1 ms apart: 0.9 wraps of ticks16 ... 14 wraps
+                fake.send("state", (t + 16_000 * i) & 0xFFFF, i)
+            await wait_for(lambda: link.stats().frames_rx >= 61)
+            assert got == []  # held: nothing to place them by yet
+            fake.frozen = t + 16_000 * 59 + 500
+            await link.ping()
+            assert [g.mcu_ticks for g in got] == [t + 16_000 * i for i in range(60)]
+            assert all(g.exact for g in got) and [g.encoder for g in got] == list(range(60))
+            assert link.stats().states_unanchored == 0
+
+    run(main)
+
+
+def test_a_stalled_host_is_not_a_link_loss() -> None:
+    # The event loop not scheduled for longer than link_timeout_s (a loaded machine), then the
+    # link timer running before the reader in the same loop iteration: the frames waiting in the
+    # pty prove the link alive. (Declaring it lost reset the SEQ, so the gap before them went
+    # uncounted and the 16-bit stamps were chained across it.)
+    async def main() -> None:
+        got: list[StateSample] = []
+        async with pty_link(on_state=got.append, link_timeout_s=0.05) as (link, fake):
+            await link.identify()
+            t = fake.frozen = 1_000_000
+            await link.ping()
+            fake.seq = (fake.seq + 5) & 0xFF  # 5 frames lost
+            time.sleep(0.08)  # fault injection: the loop stalls past the link timeout ...
+            fake.send("state", (t + 1600) & 0xFFFF, 0)  # ... while the MCU kept talking
+            link._check_link()  # the timer's callback, run before the reader
+            assert link.link_up
+            await wait_for(lambda: len(got) == 1)
+            st = link.stats()
+            assert st.link_losses == 0 and st.lost_frames == 5 and not got[0].exact
+
+    run(main)

@@ -68,7 +68,7 @@ def test_hash_changes_with_any_field() -> None:
         (lambda d: d.update(max_payload=300), "max_payload must be"),
     ],
 )
-def test_bad_specs_are_refused_naming_the_file(mutate, needle) -> None:  # type: ignore[no-untyped-def]
+def test_bad_specs_are_refused_naming_the_file(mutate, needle) -> None:
     doc = small_doc()
     mutate(doc)
     with pytest.raises(ConfigError, match=needle) as info:

@@ -246,3 +246,18 @@ def test_steppers_move_and_home(manual: tuple[VirtualMcu, serial.Serial, Reader]
     assert vm.stepper_position(1) == -50  # the mechanism stopped on the switch
     assert final[0] == {"axis": 0, "position": -200, "flags": 0}
     assert final[1] == {"axis": 1, "position": 0, "flags": 2 | 4}  # homed, at limit
+
+
+def test_long_advance_loses_no_frame(manual: tuple[VirtualMcu, serial.Serial, Reader]) -> None:
+    # One 0.2 s step of the clock (a plant stepping coarsely, or the pump woken late on a loaded
+    # host) makes 2000 state frames at state_div 1, 20 kB; the host build's TX ring holds 8 kB.
+    # The UART drains it while time runs (1 ms slices), as the chip's UART would: no SEQ gap,
+    # no tx_overflow fault.
+    vm, port, rd = manual
+    _arm(port, rd, watchdog_ms=1000, state_div=1)
+    vm.advance_to(vm.time_s + 0.2)
+    frames = list(rd.frames(0.5))
+    states = [f for f in frames if f.name == "state"]
+    assert len(states) >= 2000 and not [f for f in frames if f.name == "fault"]
+    assert {(b.seq - a.seq) % 256 for a, b in pairwise(frames)} == {1}
+    assert _ticks16_steps(states) == {CLOCK_HZ // 10_000}

@@ -39,6 +39,18 @@ def _mcu() -> dict[str, Any]:
     return {f"mcu_decode_{k}": v for k, v in bench_decode().items()}
 
 
+def _loop() -> dict[str, Any]:
+    from tvsd.control.latency import bench_loop
+
+    return bench_loop()
+
+
+def _mcu_sil() -> dict[str, Any]:
+    from tvsd.sim.mcu_plant import bench_clock_sync
+
+    return bench_clock_sync()
+
+
 def _doctor() -> dict[str, Any]:
     from tvsd.analysis.bench import bench_analyze
 
@@ -51,7 +63,9 @@ BENCHES: dict[str, Callable[[], dict[str, Any]]] = {
     "scan": _scan,
     "imu": _imu,
     "mcu": _mcu,
+    "mcu_sil": _mcu_sil,
     "doctor": _doctor,
+    "loop": _loop,
 }
 
 

@@ -15,6 +15,12 @@ quadrature counts per revolution) and a zero pulse at each whole revolution cros
 interpolated between calls); :meth:`pulse` latches a sensor edge; :attr:`pwm_duty`,
 :attr:`motor_volts`, :attr:`laser_on` and :meth:`stepper_position` read the outputs back.
 
+The UART drains the core's TX ring while time runs: every advance is cut into slices of at most
+:data:`_UART_SLICE_S` (at 2 Mbaud the line moves 200 bytes per millisecond; 10 kHz state frames
+make 100), and the ring is emptied after each slice. So a long step of the clock (a manual
+advance, or the pump thread woken late on a loaded host) does not overflow the ring (8 KB in the
+host build: 82 ms of 10 kHz state frames), as it would not on the chip, whose UART never stops.
+
 Not modelled: the UART's 2 Mbaud line rate (the pty is faster; the core's TX ring still drops
 and counts frames when the reader falls behind by more than the pty buffer).
 """
@@ -47,6 +53,7 @@ STEPPER_AXES = 2
 _DUTY_FULL = 32767
 _PUMP_PERIOD_S = 0.001
 _PTY_BACKLOG = 65536  # bytes held for a slow reader before the core's TX ring takes the loss
+_UART_SLICE_S = 0.001  # longest stretch of core time between two drains of its TX ring
 
 
 class VirtualMcuError(DeviceError):
@@ -137,7 +144,9 @@ class VirtualMcu:
         tty.setraw(self._slave)  # bytes pass untouched: no echo, no line discipline
         os.set_blocking(self._master, False)
         self.port: str = os.ttyname(self._slave)
-        self._backlog = bytearray()
+        self._backlog = bytearray()  # guarded by _lock (the pump writes it, advances fill it)
+        self._txbuf = (ctypes.c_uint8 * 4096)()
+        self._slice_ticks = max(1, round(_UART_SLICE_S * self.clock_hz))
         self._stop = threading.Event()
         self._closed = False
         self._thread = threading.Thread(target=self._pump, name="virtual-mcu", daemon=True)
@@ -166,7 +175,25 @@ class VirtualMcu:
         if self.clock != "manual":
             raise VirtualMcuError("advance_to() drives the manual clock; this one is 'wall'")
         with self._lock:
-            self._lib.vmcu_advance_to(self._ticks(t_s))
+            self._advance_locked(self._ticks(t_s))
+
+    def _advance_locked(self, ticks: int) -> None:
+        """Run the core to `ticks` in UART slices, draining its TX ring after each (lock held)."""
+        now = int(self._lib.vmcu_now())
+        while now < ticks:
+            now = min(ticks, now + self._slice_ticks)
+            self._lib.vmcu_advance_to(now)
+            self._drain_locked()
+
+    def _drain_locked(self) -> None:
+        # Leave bytes in the core's TX ring when the reader is this far behind: the ring then
+        # overflows and the firmware counts the loss, as on the real line.
+        buf = self._txbuf
+        while len(self._backlog) < _PTY_BACKLOG:
+            n = self._lib.vmcu_tx_bytes(buf, len(buf))
+            if not n:
+                break
+            self._backlog += bytes(buf[:n])
 
     # ---- plant inputs -------------------------------------------------------------------
     def set_shaft(self, angle_rad: float, t_s: float | None = None) -> None:
@@ -184,9 +211,10 @@ class VirtualMcu:
                 for k in range(first, last + 1):
                     frac = (k * math.tau - a_prev) / (angle_rad - a_prev)
                     t_k = t_prev + frac * (t - t_prev)
-                    self._lib.vmcu_pulse(PULSE_ZERO, self._ticks(t_k))
+                    self._pulse_locked(PULSE_ZERO, self._ticks(t_k))
             if self.clock == "manual":
-                self._lib.vmcu_advance_to(self._ticks(t))
+                # up to the tick before t: the control tick at t itself samples the new count
+                self._advance_locked(self._ticks(t) - 1)
             count = round(angle_rad / math.tau * self.counts_per_rev)
             self._lib.vmcu_set_encoder(((count + 2**31) % 2**32) - 2**31)  # wraps like the chip
 
@@ -196,7 +224,12 @@ class VirtualMcu:
             raise VirtualMcuError(f"pulse channel must be 0 (zero) or 1 (optical), got {channel}")
         t = self._now_or(t_s)
         with self._lock:
-            self._lib.vmcu_pulse(channel, self._ticks(t))
+            self._pulse_locked(channel, self._ticks(t))
+
+    def _pulse_locked(self, channel: int, ticks: int) -> None:
+        if self.clock == "manual":
+            self._advance_locked(ticks)  # the core latches at `ticks`, advancing there first
+        self._lib.vmcu_pulse(channel, ticks)
 
     def set_limit(self, axis: int, position: int | None) -> None:
         """Home switch of a stepper axis: closed at and below `position` steps (None: absent)."""
@@ -239,7 +272,6 @@ class VirtualMcu:
 
     # ---- byte pump ----------------------------------------------------------------------
     def _pump(self) -> None:
-        buf = (ctypes.c_uint8 * 4096)()
         while not self._stop.is_set():
             readable, _, _ = select.select([self._master], [], [], _PUMP_PERIOD_S)
             data = b""
@@ -254,25 +286,19 @@ class VirtualMcu:
                 # Time first: received bytes are handled at the time they arrived, so a
                 # heartbeat_ack's mcu_ticks matches the host's clock to the pump's latency.
                 if self.clock == "wall":
-                    self._lib.vmcu_advance_to(self._ticks(self._wall_s()))
+                    self._advance_locked(self._ticks(self._wall_s()))
                 if data:
                     raw = (ctypes.c_uint8 * len(data)).from_buffer_copy(data)
                     self._lib.vmcu_rx_bytes(raw, len(data))
-                # Leave bytes in the core's TX ring when the reader is this far behind: the
-                # ring then overflows and the firmware counts the loss, as on the real line.
-                while len(self._backlog) < _PTY_BACKLOG:
-                    n = self._lib.vmcu_tx_bytes(buf, len(buf))
-                    if not n:
-                        break
-                    self._backlog += bytes(buf[:n])
-            if self._backlog:
-                try:
-                    written = os.write(self._master, self._backlog)
-                    del self._backlog[:written]
-                except (BlockingIOError, InterruptedError):
-                    pass
-                except OSError:
-                    return
+                self._drain_locked()
+                if self._backlog:  # non-blocking; under the lock, as advances append to it
+                    try:
+                        written = os.write(self._master, self._backlog)
+                        del self._backlog[:written]
+                    except (BlockingIOError, InterruptedError):
+                        pass
+                    except OSError:
+                        return
 
     # ---- lifetime -----------------------------------------------------------------------
     def close(self) -> None:

@@ -115,6 +115,12 @@ class ClockSync:
             held=len(self._samples),
         )
 
+    def to_ticks(self, host_s: float) -> int:
+        """The MCU tick count at a host time (the inverse of to_host); needs a fit."""
+        if self.fit_ is None:
+            raise ValueError("no clock fit yet: no heartbeat round trip")
+        return self._x_ref + round((host_s - self._y_ref) / self._b)
+
     def to_host(self, mcu_ticks: int) -> float:
         """Host time (s) of an MCU tick count (unwrapped). Before any sample: NaN."""
         if self.fit_ is None:

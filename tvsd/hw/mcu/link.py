@@ -17,6 +17,7 @@ import contextlib
 import logging
 import math
 import os
+import select
 import statistics
 import struct
 import termios
@@ -52,6 +53,14 @@ log = logging.getLogger(__name__)
 # A state frame may be stamped a little after a heartbeat_ack it follows in the queue (the tick
 # ISR can run between the ack's timestamp and its frame_send): 64 µs at 16 MHz is ample.
 ACK_SLACK_TICKS = 1024
+# After a loss the 16-bit stamp is placed from the clock fit: a frame is stamped before it arrives,
+# so its count is the latest one with those low bits at or before the arrival mapped to MCU ticks,
+# plus this much for the fit's own error (0.5 ms); right while the frame's latency is under
+# 4.1 ms - 0.5 ms (one ticks16 wrap minus the slack).
+GUESS_SLACK_TICKS = 8000
+# State frames that come before the first heartbeat_ack (their epoch unknown) are held, then
+# placed by that ack and delivered exact; at 10 kHz this is 0.4 s of them.
+HOLD_MAX = 4096
 FLASH_HINT = (
     "flash the firmware of this tvsd version (make -C firmware, then avrdude: hil/README.md, section MCU)"
 )
@@ -85,8 +94,9 @@ class StateSample:
     mcu_ticks: int  # unwrapped to 64 bits (the low 16 bits came on the wire)
     encoder: int  # unwrapped encoder count
     host_time: float  # time.monotonic() of arrival
-    # unwrapped along an unbroken chain of frames from a heartbeat_ack; False before the first
-    # ack and after a loss until the next one (mcu_ticks may then be off by multiples of 65536)
+    # unwrapped along an unbroken chain of frames from a heartbeat_ack; False after a loss or an
+    # outage until the next ack (mcu_ticks placed from the clock fit, possibly off by multiples of
+    # 65536). Frames before the first ack are held and delivered when it places them (exact).
     exact: bool = True
 
 
@@ -140,6 +150,7 @@ class LinkStats:
     rtt_samples: int = 0
     clock_drift_ppm: float = math.nan
     clock_residual_us: float = math.nan
+    states_unanchored: int = 0  # state frames before the first heartbeat_ack that it could not place
 
     def as_dict(self) -> dict[str, Any]:
         return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in self.__dict__.items()}
@@ -219,7 +230,9 @@ class McuLink:
         self._anchor_ticks: int | None = None  # last state or heartbeat_ack stamp (ticks16 base)
         self._anchor_lost = 0  # _rx_lost at that anchor
         self._anchor_exact = False  # the anchor descends from a heartbeat_ack
-        self._rx_lost = 0  # frames lost before the frame being handled
+        self._rx_lost = 0  # frames lost before the frame being handled (+1 per link outage)
+        self._held: deque[StateSample] = deque()  # state samples before the first heartbeat_ack
+        self._acked = False  # a heartbeat_ack has fixed the tick count's epoch
         self._encoder: int | None = None
         self._enc_rate = 0.0  # counts per tick, to unwrap the encoder across gaps
         self._event_seq: int | None = None
@@ -311,6 +324,12 @@ class McuLink:
         self.identity = ident
         self.clock = ClockSync(ident.clock_hz, self.settings.clock)
         return ident
+
+    def restart_clock_sync(self) -> None:
+        """Forget the heartbeat round trips: the MCU's clock restarted, jumped or was held (a
+        SIL clock that starts running); the fit rebuilds from the next heartbeats."""
+        if self.identity is not None:
+            self.clock = ClockSync(self.identity.clock_hz, self.settings.clock)
 
     async def ping(self, timeout_s: float = 0.5) -> float:
         """One heartbeat round trip; returns the RTT in seconds."""
@@ -507,8 +526,19 @@ class McuLink:
         if self._fd is None or not self._stats.link_up:
             return
         if self._require_loop().time() >= self._last_rx + self.settings.link_timeout_s:
+            # A host that was not scheduled for a while has not lost the link: read what is
+            # waiting first (the timer can run before the reader in the loop's iteration). Only
+            # if readable: with VMIN = VTIME = 0 an empty read returns b"", which means EOF.
+            fd = self._fd
+            if fd is not None and select.select([fd], [], [], 0)[0]:
+                self._on_readable()
+            if self._fd is None:
+                return
+        if self._require_loop().time() >= self._last_rx + self.settings.link_timeout_s:
+            # the 16-bit stamps cannot be chained across an outage: break the chain
+            self._rx_lost += 1
             self._set_link(False)  # the next frame re-arms the watchdog
-        else:
+        elif self._watchdog is None:  # (reading may have re-armed it)
             self._arm_watchdog()
 
     def _unwrap32(self, raw: int, now: float) -> int:
@@ -531,9 +561,14 @@ class McuLink:
         # The MCU queues frames in order: the last state frame received was stamped before this
         # ack, and the next one after it, give or take an ISR (ACK_SLACK_TICKS), and the state
         # period is capped below one ticks16 wrap. With no frame lost in between, both are exact.
-        if self._state_ticks is not None and lost == self._anchor_lost:
+        chained = self._state_ticks is not None and lost == self._anchor_lost
+        if chained and self._state_ticks is not None:
             top = ticks + ACK_SLACK_TICKS
-            self._state_ticks = top - ((top - self._state_ticks) & 0xFFFF)
+            placed = top - ((top - self._state_ticks) & 0xFFFF)
+            self._release_held(placed - self._state_ticks)
+            self._state_ticks = placed
+        self._release_held(None)  # not chained to this ack: their epoch stays unknown
+        self._acked = True
         self._anchor_ticks, self._anchor_lost = ticks - ACK_SLACK_TICKS, lost
         self._anchor_exact = True
         if sent is None:
@@ -550,6 +585,35 @@ class McuLink:
         if fut is not None and not fut.done():
             fut.set_result(rtt)
 
+    def _release_held(self, shift: int | None) -> None:
+        """Deliver the held pre-ack samples moved by `shift` ticks (exact), or drop them."""
+        held, self._held = self._held, deque()
+        if shift is None:
+            self._stats.states_unanchored += len(held)
+            return
+        for s in held:
+            self._deliver_state(StateSample(s.mcu_ticks + shift, s.encoder, s.host_time, True))
+
+    def _deliver_state(self, sample: StateSample) -> None:
+        if self.on_state is not None:
+            self.on_state(sample)
+
+    def _place_after_loss(self, ticks16: int, now: float) -> int:
+        """The count of a state frame that follows a loss: the latest with these low bits that
+        was stamped before the frame arrived (clock fit, else the last count and the host clock),
+        and after the last stamp seen."""
+        clock = self.clock
+        if clock is not None and clock.fit_ is not None:
+            latest = clock.to_ticks(now) + GUESS_SLACK_TICKS
+        else:
+            hz = self.identity.clock_hz if self.identity is not None else 0
+            assert self._ticks is not None
+            latest = self._ticks + int(max(0.0, now - self._ticks_host) * hz) + GUESS_SLACK_TICKS
+        ticks = latest - ((latest - ticks16) & 0xFFFF)
+        if self._anchor_ticks is not None and ticks <= self._anchor_ticks:
+            ticks += (((self._anchor_ticks - ticks) >> 16) + 1) << 16  # frames come in order
+        return ticks
+
     def _on_state(self, msg: State, now: float) -> None:
         # ticks16 is the low half of the MCU's tick counter (16 MHz: it wraps every 4.1 ms; the
         # firmware caps the state period at 4 ms): unwrap it forward from the last state frame
@@ -562,12 +626,10 @@ class McuLink:
         exact = chained and self._anchor_exact
         if anchor is not None and chained:
             ticks = anchor + ((msg.ticks16 - anchor) & 0xFFFF)
-        elif self._ticks is not None:
-            # After a loss, guess from the host's clock (host jitter can make it a wrap off);
-            # the next heartbeat_ack restores the exact count.
-            hz = self.identity.clock_hz if self.identity is not None else 0
-            expected = self._ticks + int(max(0.0, now - self._ticks_host) * hz)
-            ticks = unwrap_nearest(msg.ticks16, 16, expected)
+        elif self._ticks is not None and self._acked:
+            # After a loss, place it from the clock (flagged: a latency over ~3.6 ms makes it a
+            # wrap off); the next heartbeat_ack restores the exact count.
+            ticks = self._place_after_loss(msg.ticks16, now)
         else:
             ticks = msg.ticks16
         self._anchor_ticks, self._anchor_lost, self._anchor_exact = ticks, lost, exact
@@ -580,10 +642,20 @@ class McuLink:
             if chained and dt > 0:
                 self._enc_rate = (enc - self._encoder) / dt
         self._state_ticks, self._encoder = ticks, enc
-        if self._ticks is None or ticks > self._ticks:
+        sample = StateSample(ticks, enc, now, exact)
+        if not self._acked:
+            # Before the first heartbeat_ack the count's upper bits are unknown: hold the samples
+            # (only an unbroken chain can be placed by the ack; a loss drops those before it).
+            if not chained:
+                self._release_held(None)
+            self._held.append(sample)
+            if len(self._held) > HOLD_MAX:
+                self._held.popleft()
+                self._stats.states_unanchored += 1
+            return
+        if exact and ticks > (self._ticks or 0):
             self._ticks, self._ticks_host = ticks, now
-        if self.on_state is not None:
-            self.on_state(StateSample(ticks, enc, now, exact))
+        self._deliver_state(sample)
 
     def _on_pulse(self, msg: Pulse, now: float) -> None:
         # event_seq counts pulse events of all channels together (see the protocol notes)

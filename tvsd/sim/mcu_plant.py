@@ -1,0 +1,321 @@
+"""SIL bridge: the drive model turns the virtual MCU's inputs, the MCU's PWM turns the model.
+
+The plant (tvsd.model.plant's kernel, open loop) is stepped in chunks (1 ms by default) on the
+virtual MCU's manual clock. Each chunk applies the MCU's PWM duty × drive voltage, held over the
+chunk (the host sets the PWM through ``McuLink.send_pwm``: open loop here), and then feeds the MCU
+what the sensors would see during the chunk, with the shaft angle interpolated linearly in time:
+
+- the encoder count (``counts_per_rev`` from ``sil.measurement.encoder_counts_per_rev``), sample
+  and hold at the chunk boundaries (and at each optical crossing);
+- the zero pulse at each crossing of 2πk (``VirtualMcu.set_shaft``);
+- the optical pulse at each crossing of 2πk + β, β being the SA angle of the configured target
+  (φ, γ, range) by tvsd.scan.geometry;
+both latched at the interpolated time rounded to the MCU timer (62.5 ns).
+
+Pacing: :meth:`McuPlant.start` runs a thread that keeps the manual clock at ``speed`` × the
+monotonic clock (so a host link, whose heartbeats and timeouts run on wall time, sees a steady
+clock, ``speed`` times faster than real time); :meth:`run_until` steps as fast as it can.
+
+Benchmark: :func:`bench_clock_sync` (``tvsctl bench --only mcu_sil``) runs 60 s of SIL at 10 ×
+real time with the link's heartbeats going and reports how far the link's ClockSync maps MCU
+ticks from the truth (the pacing line).
+
+The plant's state (tvsd.model.plant.state_array) carries its time and delay ring from chunk to
+chunk, so resonance phase and transport delay run on; a `drift` effect runs over each chunk. The
+encoder holds its count between feeds.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import bisect
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+from tvsd.config import Config, VibrationConfig
+from tvsd.model import plant as K
+from tvsd.scan.geometry import aim, doe_b_target
+from tvsd.scan.settings import ScanSettings
+from tvsd.sim import runs
+from tvsd.sim.virtual_mcu import PULSE_OPTICAL, VirtualMcu
+
+
+@dataclass(frozen=True)
+class Target:
+    """Where the positioning laser points: the DoE B convention (PL angles and range)."""
+
+    phi_deg: float = 30.0
+    gamma_deg: float = 0.0
+    range_m: float = 2.0
+
+
+def target_beta(cfg: Config, target: Target) -> float:
+    """β (rad) of the laser spot on the target: the inverse of eqs. (1)–(3), stepper-quantised."""
+    settings = ScanSettings(baseline_m=cfg.geometry.baseline_m)
+    xyz = doe_b_target(target.phi_deg, target.gamma_deg, target.range_m, settings.baseline_m)
+    return aim(*xyz, settings).beta
+
+
+def crossings(a0: float, a1: float, offset: float) -> list[float]:
+    """Fractions f in (0, 1] where a0 + f·(a1 − a0) crosses 2πk + offset, in time order."""
+    if a1 == a0:
+        return []
+    lo, hi = sorted((a0, a1))
+    first = math.floor((lo - offset) / math.tau) + 1
+    last = math.floor((hi - offset) / math.tau)
+    fr = [(k * math.tau + offset - a0) / (a1 - a0) for k in range(first, last + 1)]
+    return sorted(f for f in fr if 0.0 < f <= 1.0)
+
+
+@dataclass
+class Pacing:
+    """How closely the paced thread kept the manual clock on speed × wall time."""
+
+    wall0: float = math.nan  # time.monotonic() when pacing started
+    sim0: float = 0.0  # sim time then
+    lag_sum_s: float = 0.0  # sum over feeds of (line − sim time reached), sim seconds
+    lag_max_s: float = 0.0
+    feeds: int = 0
+
+    def truth_host(self, sim_s: float, speed: float) -> float:
+        """Host time at which the pacing line reaches sim_s."""
+        return self.wall0 + (sim_s - self.sim0) / speed
+
+
+@dataclass
+class McuPlant:
+    """The drive model wired to a virtual MCU (manual clock). Use as a context manager."""
+
+    cfg: Config
+    target: Target = field(default_factory=Target)
+    speed: float = 1.0
+    chunk_s: float = 1e-3
+    vibration: VibrationConfig | None = None
+    initial_state: np.ndarray | None = None
+    record: bool = True  # keep the (t, angle) of every encoder update, for tests
+    library: Path | None = None
+
+    def __post_init__(self) -> None:
+        if not self.speed > 0:
+            raise ValueError(f"speed must be > 0, got {self.speed}")
+        self.setup = runs.Setup.from_config(self.cfg, vibration=self.vibration)
+        self.counts_per_rev = self.cfg.sil_or_default.measurement.encoder_counts_per_rev
+        self.beta = target_beta(self.cfg, self.target)
+        self._n = max(1, round(self.chunk_s / self.setup.dt))
+        self.chunk_s = self._n * self.setup.dt
+        self._state = K.state_array(self.setup.dt)
+        if self.initial_state is not None:
+            self._state[: len(self.initial_state)] = self.initial_state
+        self._ctrl = self.setup.controller(K.MODE_OPEN, 0.0)
+        self._u = np.zeros(self._n)
+        self._out = np.zeros((1, K.N_OUT))
+        self._seed = self.setup.seed  # the kernel reseeds numpy when seed >= 0: only once
+        self.t = 0.0  # sim time of the plant (= the MCU's manual clock after each chunk)
+        self._chunks = 0  # t = chunks × chunk_s, not a running sum (no drift across the timer's ticks)
+        self.mcu = VirtualMcu(
+            counts_per_rev=self.counts_per_rev,
+            drive_volts=self.cfg.drive.u_max_v,
+            clock="manual",
+            library=self.library,
+        )
+        self.shaft_t: list[float] = []
+        self.shaft_angle: list[float] = []
+        self.optical_times: list[float] = []  # exact crossing times, before the timer rounds them
+        self.pacing = Pacing()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+        self._feed(0.0, self.angle)
+
+    @property
+    def angle(self) -> float:
+        return float(self._state[K.S_PHI])
+
+    @property
+    def omega(self) -> float:
+        return float(self._state[K.S_OMEGA])
+
+    def angle_at(self, t_s: float) -> float:
+        """The angle the encoder holds at sim time t_s (the last feed at or before it, as the
+        MCU's timer sees times: to the nearest 62.5 ns tick)."""
+        i = bisect.bisect_right(self.shaft_t, t_s + 0.5 / self.mcu.clock_hz) - 1
+        return self.shaft_angle[max(i, 0)]
+
+    # ---- stepping ------------------------------------------------------------------------
+    def step(self) -> None:
+        """One chunk: the MCU's motor voltage held over it, then the sensors fed."""
+        self._u[:] = self.mcu.motor_volts
+        t0, a0 = self.t, self.angle
+        sub = self.setup.substeps
+        K.run(
+            self._state,
+            self.setup.plant,
+            self.setup.effects,
+            self.setup.vibration,
+            self._ctrl,
+            self.setup.dt / sub,
+            self._n * sub,
+            self._u,
+            self._n * sub,
+            self._seed,
+            self._out,
+        )
+        self._seed = -1
+        self._chunks += 1
+        t1, a1 = self._chunks * self.chunk_s, self.angle
+        for f in crossings(a0, a1, self.beta):
+            t_o = t0 + f * (t1 - t0)
+            self._feed(t_o, a0 + f * (a1 - a0))  # zero pulses before t_o, in time order
+            self.mcu.pulse(PULSE_OPTICAL, t_o)
+            self.optical_times.append(t_o)
+        self._feed(t1, a1)
+        self.t = t1
+
+    def _feed(self, t_s: float, angle: float) -> None:
+        self.mcu.set_shaft(angle, t_s)
+        if self.record:
+            self.shaft_t.append(t_s)
+            self.shaft_angle.append(angle)
+
+    def run_until(self, t_s: float) -> None:
+        """Step as fast as the machine allows until the plant reaches t_s (sim seconds)."""
+        while self.t + 0.5 * self.chunk_s < t_s:
+            self.step()
+
+    # ---- pacing thread --------------------------------------------------------------------
+    def start(self) -> None:
+        """Run the plant in a thread at `speed` × real time until :meth:`stop`."""
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._paced, name="mcu-plant", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        if self._error is not None:
+            raise RuntimeError("the paced plant thread failed") from self._error
+
+    def _paced(self) -> None:
+        p = self.pacing
+        p.wall0, p.sim0 = time.monotonic(), self.t
+        period = self.chunk_s / self.speed
+        try:
+            while not self._stop.is_set():
+                line = p.sim0 + self.speed * (time.monotonic() - p.wall0)
+                while self.t + self.chunk_s <= line:
+                    self.step()
+                lag = line - self.t
+                p.lag_sum_s += lag
+                p.lag_max_s = max(p.lag_max_s, lag)
+                p.feeds += 1
+                # pacing, not synchronisation: wake for the next chunk boundary
+                self._stop.wait(max(0.0, (self.t + self.chunk_s - line) / self.speed) + 0.1 * period)
+        except BaseException as exc:  # reported by stop()
+            self._error = exc
+
+    # ---- lifetime -------------------------------------------------------------------------
+    def close(self) -> None:
+        try:
+            self.stop()
+        finally:
+            self.mcu.close()
+
+    def __enter__(self) -> McuPlant:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def steady_state(
+    cfg: Config, volts: float, seconds: float = 60.0, vibration: VibrationConfig | None = None
+) -> np.ndarray:
+    """The plant's state after `seconds` at a constant voltage (angle reset to 0): a start at
+    constant speed, so a revolution's β is not skewed by acceleration."""
+    setup = runs.Setup.from_config(cfg, vibration=vibration)
+    state = K.state_array(setup.dt)
+    runs.open_loop(
+        setup, np.full(round(seconds / setup.dt), volts), decim=round(seconds / setup.dt), state=state
+    )
+    state[K.S_PHI] = 0.0
+    return state
+
+
+# ---- benchmark ------------------------------------------------------------------------------
+
+
+def bench_clock_sync(seconds: float = 60.0, speed: float = 10.0, duty: float = 0.5) -> dict[str, Any]:
+    """Clock-sync error after `seconds` of SIL: MCU ticks mapped to host time by the link's
+    ClockSync (heartbeats every 20 ms of wall time) against the truth, the pacing line on which
+    the plant keeps the manual clock (host = wall0 + sim/speed). Runs `speed` × real time."""
+    return asyncio.run(_bench(seconds, speed, duty))
+
+
+async def _bench(seconds: float, speed: float, duty: float) -> dict[str, Any]:
+    from tvsd.config import load_config
+    from tvsd.hw.mcu.link import FaultEvent, LinkSettings, McuLink
+
+    cfg = load_config()
+    errs: list[tuple[float, float]] = []  # (sim s, error s)
+    faults: list[FaultEvent] = []
+    with McuPlant(cfg, speed=speed, record=False) as plant:
+        hz = plant.mcu.clock_hz
+        async with McuLink(LinkSettings(port=plant.mcu.port), on_fault=faults.append) as link:
+            # the watchdog in MCU time: 0.5 s of wall time without a heartbeat
+            link.send_config(watchdog_ms=min(65535, math.ceil(500 * speed)), state_div=10, max_on_ms=0)
+            link.send_pwm(duty)
+            while plant.mcu.pwm_duty == 0.0:
+                await asyncio.sleep(0.001)
+            wall0 = time.monotonic()
+            plant.start()
+            while plant.t < 0.05:  # until the paced clock runs
+                await asyncio.sleep(0.001)
+            link.restart_clock_sync()  # the round trips so far saw a held clock
+            clock = link.clock
+            assert clock is not None
+            while (t := plant.t) < seconds:
+                await asyncio.sleep(0.1)
+                if clock.ready:
+                    err = clock.to_host(round(t * hz)) - plant.pacing.truth_host(t, speed)
+                    errs.append((t, err))
+            await link.stop_heartbeat()  # no round trip may see the clock held once it stops
+            plant.stop()
+            wall = time.monotonic() - wall0
+            t_end = plant.t
+            final = clock.to_host(round(t_end * hz)) - plant.pacing.truth_host(t_end, speed)
+            st = link.stats()
+            fit = clock.fit_
+    last = np.array([e for t, e in errs if t >= t_end - 10.0])
+    p = plant.pacing
+    rate_ppm = (1.0 / (fit.seconds_per_tick * hz * speed) - 1.0) * 1e6 if fit is not None else math.nan
+    return {
+        "mcu_sil_sim_s": round(t_end, 3),
+        "mcu_sil_speed": speed,
+        "mcu_sil_wall_s": round(wall, 2),
+        "mcu_sil_sync_err_us": round(final * 1e6, 1),
+        "mcu_sil_sync_err_rms_last10s_us": round(float(np.sqrt(np.mean(last**2))) * 1e6, 1)
+        if len(last)
+        else None,
+        "mcu_sil_sync_err_max_last10s_us": round(float(np.abs(last).max()) * 1e6, 1) if len(last) else None,
+        "mcu_sil_pacing_lag_mean_us": round(p.lag_sum_s / max(p.feeds, 1) / speed * 1e6, 1),
+        "mcu_sil_rate_err_ppm": round(rate_ppm, 1),
+        "mcu_sil_rtt_p50_us": round(st.rtt_p50_s * 1e6, 1),
+        "mcu_sil_lost_frames": st.lost_frames,
+        "mcu_sil_faults": [f"{f.name}@{f.host_time - wall0:.3f}s" for f in faults] or None,
+    }
