@@ -84,7 +84,9 @@ def test_spin_scan_points_record_export_and_orderly_stop(daemon, tmp_path):
     tvsctl(sock, "scan", "start")
     points = tvsctl(sock, "points", "--count", "3", "--json")
     rows = [json.loads(line) for line in points.stdout.splitlines() if line.strip()]
-    assert len(rows) == 3 and all({"x", "y", "z"} <= r.keys() for r in rows)
+    assert len(rows) == 3 and all({"x", "y", "z", "sigma_x", "flags", "t_mono"} <= r.keys() for r in rows)
+    # t_mono is the optical pulse on this machine's monotonic clock: it lies in the past.
+    assert all(r["t_mono"] < time.monotonic() for r in rows)
     wait_for(lambda: status(sock)["points"]["per_s"] > 5, 15, "a point stream at the rotation rate")
     tvsctl(sock, "record", "stop")
     recs = list(data.iterdir())

@@ -57,6 +57,12 @@ def _doctor() -> dict[str, Any]:
     return bench_analyze()
 
 
+def _api() -> dict[str, Any]:
+    from tvsd.daemon.bench import bench_point_latency
+
+    return bench_point_latency()
+
+
 # name -> function returning a flat dict of figures; one line per benchmark group.
 BENCHES: dict[str, Callable[[], dict[str, Any]]] = {
     "sim": _sim,
@@ -66,6 +72,7 @@ BENCHES: dict[str, Callable[[], dict[str, Any]]] = {
     "mcu_sil": _mcu_sil,
     "doctor": _doctor,
     "loop": _loop,
+    "api": _api,
 }
 
 

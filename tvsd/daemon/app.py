@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from tvsd.config import Config, Gains
+from tvsd.control import latency as L
 from tvsd.control import runner as RN
 from tvsd.control.conditions import check_gains, warnings
 from tvsd.daemon.can_bridge import CanBridge
@@ -37,7 +38,7 @@ from tvsd.scan import geometry
 from tvsd.scan.stream import PointStream
 from tvsd.sim import runs
 
-DRAIN_S = 0.1
+DRAIN_S = 0.02  # how often recorded ticks move on: bounds the pulse → point latency from above
 RECORD_PERIOD_S = 1e-3  # 10 kHz ticks → a 1 kHz recording (DESIGN.md's sample_rate_hz)
 SIL_TARGET_RANGE_M = 2.0  # the SIL scene's targets are 2 m from the PL (tvsd/sim/scene.py)
 TIMER_TICK_S = 62.5e-9  # the firmware's input-capture tick (firmware/PROTOCOL.md)
@@ -88,6 +89,7 @@ class Daemon:
         self.aim_deg = (60.0, 0.0)  # φ, γ: DoE B's middle target
         self.points_total = 0
         self._points_window: deque[tuple[float, int]] = deque()
+        self._latency: deque[float] = deque(maxlen=500)  # optical pulse → point published, s
         self._last_tick = 0
         self._carry: np.ndarray = np.zeros((0, RN.N_REC))  # ticks of the recording's open bin
         self._loop_channel: Any = None
@@ -171,8 +173,13 @@ class Daemon:
 
     def _scan(self, rows: np.ndarray) -> None:
         assert self.stream is not None and self.sensors is not None
+        t0 = self.runner.ints[L.K_START_NS] / 1e9  # the loop's start on CLOCK_MONOTONIC
         for kind, ticks in self.sensors.feed(rows[:, RN.R_T], rows[:, RN.R_PHI]):
             for point in self.stream.add_pulse(kind, ticks):
+                # The optical pulse's host time: a client on this machine gets the latency from
+                # pulse to point as time.monotonic() − t_mono on receipt.
+                point["t_mono"] = t0 + float(point["t"])
+                self._latency.append(time.monotonic() - point["t_mono"])
                 self.points_total += 1
                 self.rpc.publish("points", point)
                 self.can.publish_point(point)
@@ -202,6 +209,12 @@ class Daemon:
         rows = self.runner.recent(100)
         return float(np.mean(rows[:, RN.R_OMEGA])) / (2 * math.pi) if len(rows) else 0.0
 
+    def _latency_ms(self) -> dict[str, float]:
+        if not self._latency:
+            return {}
+        lat = np.asarray(self._latency) * 1e3
+        return {"latency_p50_ms": float(np.median(lat)), "latency_max_ms": float(lat.max())}
+
     def points_per_s(self) -> float:
         w = self._points_window
         now = time.monotonic()
@@ -226,7 +239,7 @@ class Daemon:
             },
             "imu": {"source": "sil", "state": "ok"},
             "link": {"source": "sil", "state": "ok"},
-            "points": {"total": self.points_total, "per_s": self.points_per_s()},
+            "points": {"total": self.points_total, "per_s": self.points_per_s(), **self._latency_ms()},
             "recording": str(self.recorder_path) if self.recorder is not None else None,
             "aim_deg": {"phi": self.aim_deg[0], "gamma": self.aim_deg[1]},
             "faults": [asdict(f) for f in self.faults],

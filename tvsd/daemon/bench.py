@@ -1,0 +1,67 @@
+"""Benchmark: latency from optical pulse to point on the API, with the daemon on the SIL plant.
+
+A real tvsd process on a temporary socket spins to 25 rev/s and scans; a client subscribed to the
+point stream takes time.monotonic() − t_mono of each point on receipt (t_mono: the optical pulse's
+host time, CLOCK_MONOTONIC, the same clock on this machine).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from tvsd.cli.client import RpcClient
+
+
+def bench_point_latency(points: int = 200, rps: float = 25.0) -> dict[str, float]:
+    with tempfile.TemporaryDirectory() as tmp:
+        sock = Path(tmp) / "tvsd.sock"
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "tvsd.daemon.main",
+                "--sil",
+                "--socket",
+                str(sock),
+                "--data-dir",
+                str(Path(tmp) / "data"),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        try:
+            deadline = time.monotonic() + 60
+            while not sock.exists() and time.monotonic() < deadline:
+                time.sleep(0.1)
+            with RpcClient(sock) as ctl:
+                ctl.call("speed", rps=rps)
+                while abs(float(ctl.call("status")["rps"]) - rps) > 0.5:  # type: ignore[index]
+                    time.sleep(0.2)
+                ctl.call("scan_start")
+                lat: list[float] = []
+                with RpcClient(sock) as sub:
+                    for msg in sub.subscribe("points"):
+                        for point in msg if isinstance(msg, list) else [msg]:
+                            lat.append(time.monotonic() - float(point["t_mono"]))  # type: ignore[index]
+                        if len(lat) >= points:
+                            break
+                ctl.call("shutdown")
+        finally:
+            try:
+                proc.wait(20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+    ms = np.asarray(lat) * 1e3
+    return {
+        "api_point_latency_p50_ms": float(np.median(ms)),
+        "api_point_latency_p99_ms": float(np.percentile(ms, 99)),
+        "api_point_latency_max_ms": float(ms.max()),
+        "api_points": float(len(ms)),
+        "api_rps": rps,
+    }
