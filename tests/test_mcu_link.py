@@ -452,7 +452,10 @@ def test_states_before_the_first_ack_are_held_then_placed_exactly() -> None:
     # ticks, no jump of a multiple of 65536 when the ack comes.
     async def main() -> None:
         got: list[StateSample] = []
-        async with pty_link(on_state=got.append) as (link, fake):
+        # A 50 ms silence before the ping would rightly be a link loss (which drops held frames
+        # that no ack can place); a loaded CI machine can take that long, so this test, which is
+        # not about link loss, gives the link 10 s.
+        async with pty_link(on_state=got.append, link_timeout_s=10.0) as (link, fake):
             await link.identify()
             t = 5_000_000  # the MCU's count; the host has not seen any of it yet
             for i in range(60):  # 60 frames 1 ms apart: 0.9 wraps of ticks16 ... 14 wraps
