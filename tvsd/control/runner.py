@@ -133,23 +133,16 @@ def control_loop(
         else:
             # Scanning: the speed reference ramps, the angle reference integrates it over the
             # measured step, and slips beyond the allowed lag (anti-windup), as in the plant kernel.
-            target = 2.0 * math.pi * vals[V_REF]
-            ramp = 2.0 * math.pi * vals[V_ACCEL] * dt
             omega_prev = omega_ref
-            if omega_ref < target:
-                omega_ref = min(omega_ref + ramp, target)
-            elif omega_ref > target:
-                omega_ref = max(omega_ref - ramp, target)
+            omega_ref = K.ramp_toward(
+                omega_ref, 2.0 * math.pi * vals[V_REF], 2.0 * math.pi * vals[V_ACCEL] * dt
+            )
             phi_ref += omega_ref * dt
-            lag = vals[V_MAXLAG]
-            if phi_ref - phi > lag or phi_ref - phi < -lag:
-                phi_ref = phi + math.copysign(lag, phi_ref - phi)
-            if vals[V_FF] != 0.0 and dt > 0.0:
-                alpha = (omega_ref - omega_prev) / dt
-                u_ff = K.feedforward(omega_ref, alpha, J, kv, kM, kb, R, ku, tc, tsv, v0)
-            lim = max(umax - abs(u_ff), 0.0)
-            eps = phi_ref - phi
-            u = robust_law(eps, omega_ref - omega, vals[V_GP], vals[V_GD], vals[V_GR], vals[V_G0], lim) + u_ff
+            alpha = (omega_ref - omega_prev) / dt if dt > 0.0 else 0.0
+            u, u_ff, phi_ref, _ = K.track(
+                phi, omega, phi_ref, omega_ref, alpha, vals[V_MAXLAG], vals[V_FF] != 0.0 and dt > 0.0,
+                J, kv, kM, kb, R, ku, tc, tsv, v0, vals[V_GP], vals[V_GD], vals[V_GR], vals[V_G0], umax,
+            )  # fmt: skip
         vals[V_U] = u
         vals[V_PHI_REF] = phi_ref
         vals[V_OMEGA_REF] = omega_ref

@@ -104,6 +104,54 @@ def feedforward(
 
 
 @njit(cache=True, nogil=True, inline="always")
+def ramp_toward(value: float, target: float, step: float) -> float:
+    """The scanning speed reference: move toward the target by at most `step`."""
+    if value < target:
+        return min(value + step, target)
+    if value > target:
+        return max(value - step, target)
+    return value
+
+
+@njit(cache=True, nogil=True, inline="always")
+def track(
+    phi: float,
+    omega: float,
+    phi_ref: float,
+    omega_ref: float,
+    alpha_ref: float,
+    max_lag: float,
+    use_ff: bool,
+    J: float,
+    kv: float,
+    kM: float,
+    kb: float,
+    R: float,
+    ku: float,
+    tau_c: float,
+    tau_s: float,
+    v0: float,
+    Gp: float,
+    Gd: float,
+    Gr: float,
+    G0: float,
+    umax: float,
+) -> tuple[float, float, float, bool]:
+    """Scanning mode, one controller update: the lag beyond ±max_lag slips the angle reference
+    (anti-windup), the model's feedforward joins the robust law, the sum stays within ±umax.
+    Returns (u, u_ff, phi_ref after a slip, slipped). Shared by this kernel and the 10 kHz
+    control thread, which each integrate the references in their own order."""
+    eps = phi_ref - phi
+    slipped = eps > max_lag or eps < -max_lag
+    if slipped:
+        phi_ref = phi + math.copysign(max_lag, eps)
+        eps = phi_ref - phi
+    u_ff = feedforward(omega_ref, alpha_ref, J, kv, kM, kb, R, ku, tau_c, tau_s, v0) if use_ff else 0.0
+    u = robust_law(eps, omega_ref - omega, Gp, Gd, Gr, G0, max(umax - abs(u_ff), 0.0)) + u_ff
+    return u, u_ff, phi_ref, slipped
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _derivs(
     omega: float,
     cur: float,
@@ -240,21 +288,14 @@ def run(
             elif mode == MODE_POSITION:
                 u = robust_law(phi_ref - phi, -omega, Gp, Gd, Gr, G0, umax)
             else:
-                if omega_ref < omega_target:
-                    omega_ref = min(omega_ref + ramp, omega_target)
-                elif omega_ref > omega_target:
-                    omega_ref = max(omega_ref - ramp, omega_target)
-                eps = phi_ref - phi
-                if eps > max_lag or eps < -max_lag:
-                    phi_ref = phi + math.copysign(max_lag, eps)
-                    eps = phi_ref - phi
-                    slips += 1
-                u_ff = 0.0
-                if use_ff:
-                    alpha_ref = (omega_ref - omega_ref_prev) / dt_ctrl
-                    u_ff = feedforward(omega_ref, alpha_ref, J0, kv0 + s2, kM0, kb0, R0, ku, tc0, ts0, v0)
+                omega_ref = ramp_toward(omega_ref, omega_target, ramp)
+                alpha_ref = (omega_ref - omega_ref_prev) / dt_ctrl
+                u, _, phi_ref, slipped = track(
+                    phi, omega, phi_ref, omega_ref, alpha_ref, max_lag, use_ff,
+                    J0, kv0 + s2, kM0, kb0, R0, ku, tc0, ts0, v0, Gp, Gd, Gr, G0, umax,
+                )  # fmt: skip
+                slips += slipped
                 omega_ref_prev = omega_ref
-                u = robust_law(eps, omega_ref - omega, Gp, Gd, Gr, G0, max(umax - abs(u_ff), 0.0)) + u_ff
 
         # Drive: delay, then dead zone and saturation.
         if delayed:  # the ring starts at zero: no command before the run
