@@ -221,8 +221,8 @@ def diagnose(
     say("fitting candidate extensions")
     cols.use_instruments(None)
     base_ls = cols.baseline()
-    rmse_base, _, _ = _heldout_rmse(cols, held, base.fit, None)
-    scored = _score(cols, held, eval_cols, base_ls, rmse_base, lags, say, exclude=())
+    speed = HeldoutSpeed(cols, held, base.fit)
+    scored = _score(cols, eval_cols, base_ls, speed, lags, say, exclude=())
     first = max(scored, key=lambda c: (c.significant, c.heldout_gain_pct))
     if first.significant and first.candidate is not None:
         # Second pass: the other causes, on top of the first (two effects at once).
@@ -233,7 +233,7 @@ def diagnose(
             cols2 if held is None else eval_cols.extended(c.y_of(eval_cols), c.builders, c.input_transform)
         )
         cols2.use_instruments(None)
-        again = _score(cols2, held, eval2, cols2.baseline(), rmse_base, lags, say, exclude=(first.cause,))
+        again = _score(cols2, eval2, cols2.baseline(), speed, lags, say, exclude=(first.cause,))
         scored = [first, *again]
     say("testing the noise colour")
     rate_rows = 1.0 / float(np.median(np.diff(cols.prep.t_rows)))
@@ -257,8 +257,10 @@ def diagnose(
     scored = _shaft_order_rule(scored, eval_cols)
     say("simulating baseline and extension on the held-out data")
     best = scored[0] if scored[0].significant else None
-    rmse_base, rmse_ext, sim = _heldout_rmse(cols, held, base.fit, best)
-    return Diagnosis(data, base, scored, noise, rmse_base, rmse_ext, cols, held, sim)
+    rmse_ext, w_ext = speed.base_rmse, speed.base_speed
+    if best is not None and best.candidate is not None and best.fit is not None:
+        rmse_ext, w_ext = speed.rmse(best.fit, best.candidate)
+    return Diagnosis(data, base, scored, noise, speed.base_rmse, rmse_ext, cols, held, speed.traces(w_ext))
 
 
 def _explains_fitting_data(ext: Fit, base: Fit) -> bool:
@@ -275,10 +277,9 @@ def _resolvable(cand: Candidate, rate_hz: float) -> bool:
 
 def _score(
     cols: Columns,
-    held: Columns | None,
     eval_cols: Columns,
     base_ls: Fit,
-    rmse_base: float,
+    speed: HeldoutSpeed,
     lags: int,
     say: Progress,
     exclude: tuple[str, ...],
@@ -301,11 +302,11 @@ def _score(
             effect = _report_effect(cand, fit, set(cols.base))
             cand = _with_effect(cand, effect)  # simulate with the fitted amplitudes and phases
             if z > Z_CRIT and gain >= MIN_GAIN_PCT:
-                _, sim, _ = _heldout_rmse(cols, held, sim_fit, Scored(cand, name, {}, z, gain, True, sim_fit))
+                sim = speed.rmse(sim_fit, cand)[0]
             significant = (
                 z > Z_CRIT
                 and gain >= MIN_GAIN_PCT
-                and sim <= SIM_TOLERANCE * rmse_base
+                and sim <= SIM_TOLERANCE * speed.base_rmse
                 and _explains_fitting_data(fit, paired_base)
                 and _resolvable(cand, cols.prep.data.sample_rate_hz)
             )
@@ -362,29 +363,33 @@ def _shaft_order_rule(scored: list[Scored], eval_cols: Columns) -> list[Scored]:
     return [promoted, demoted, *rest]
 
 
-def _heldout_rmse(
-    cols: Columns, held: Columns | None, base_fit: Fit, best: Scored | None
-) -> tuple[float, float, dict[str, np.ndarray]]:
-    target = held if held is not None else cols
-    mask_full = np.ones(len(target.prep.data.t), dtype=bool)
-    if held is None:
-        t = target.prep.data.t
-        mask_full = t >= t[0] + HOLDOUT_SPLIT * (t[-1] - t[0])
-    measured = target.prep.data.speed if target.prep.data.speed is not None else target.prep.speed
-    w_base = _simulate(target, base_fit, None, SIM_WINDOW_S)
-    rmse_base = float(np.sqrt(np.mean((w_base - measured)[mask_full] ** 2)))
-    w_ext = w_base
-    if best is not None and best.candidate is not None and best.fit is not None:
-        w_ext = _simulate(target, best.fit, best.candidate, SIM_WINDOW_S)
-    rmse_ext = float(np.sqrt(np.mean((w_ext - measured)[mask_full] ** 2)))
-    sim = {
-        "t": target.prep.data.t,
-        "measured": measured,
-        "baseline": w_base,
-        "extended": w_ext,
-        "heldout": mask_full,
-    }
-    return rmse_base, rmse_ext, sim
+class HeldoutSpeed:
+    """Speed RMSE on the held-out part of a model simulated from the recorded command, restarted
+    from the measured state every SIM_WINDOW_S. The baseline is simulated once; each extension
+    then simulates only itself."""
+
+    def __init__(self, cols: Columns, held: Columns | None, base_fit: Fit) -> None:
+        self.target = held if held is not None else cols
+        d = self.target.prep.data
+        self.mask = np.ones(len(d.t), dtype=bool)
+        if held is None:
+            self.mask = d.t >= d.t[0] + HOLDOUT_SPLIT * (d.t[-1] - d.t[0])
+        self.measured = d.speed if d.speed is not None else self.target.prep.speed
+        self.base_rmse, self.base_speed = self.rmse(base_fit, None)
+
+    def rmse(self, fit: Fit, cand: Candidate | None) -> tuple[float, np.ndarray]:
+        w = _simulate(self.target, fit, cand, SIM_WINDOW_S)
+        return float(np.sqrt(np.mean((w - self.measured)[self.mask] ** 2))), w
+
+    def traces(self, extended: np.ndarray) -> dict[str, np.ndarray]:
+        """For the report."""
+        return {
+            "t": self.target.prep.data.t,
+            "measured": self.measured,
+            "baseline": self.base_speed,
+            "extended": extended,
+            "heldout": self.mask,
+        }
 
 
 def _report_effect(cand: Candidate, fit: Fit, base_names: set[str]) -> dict[str, Any]:
