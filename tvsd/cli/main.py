@@ -16,7 +16,11 @@ from collections.abc import Sequence
 from tvsd import __version__
 from tvsd.errors import EXIT_INTERNAL, EXIT_USAGE, TvsdError
 
-# command name -> module offering register(subparsers)
+_DAEMON_COMMANDS = ("status", "speed", "scan", "aim", "gains", "record", "faults", "points", "shutdown")
+
+# command name -> module offering register(subparsers) (a module may register several commands).
+# Only the invoked command's module is imported: the others pull in scipy, python-can, numba
+# kernels, and would cost every call a second of start-up.
 COMMANDS: dict[str, str] = {
     "sim": "tvsd.cli.sim",
     "bench": "tvsd.cli.bench",
@@ -25,7 +29,7 @@ COMMANDS: dict[str, str] = {
     "mcu": "tvsd.cli.mcu",
     "export": "tvsd.cli.export",
     "latency": "tvsd.cli.latency",
-    "daemon": "tvsd.cli.daemon_cmds",  # status, speed, scan, aim, gains, record, faults, points, shutdown
+    **dict.fromkeys(_DAEMON_COMMANDS, "tvsd.cli.daemon_cmds"),  # thin clients of tvsd's socket
 }
 
 
@@ -37,18 +41,23 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"{self.prog}: error: {message}\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
+    """The parser for this call: the invoked command's module only, or every module (help, a
+    typo, no command) so that argparse can list and suggest them all."""
     parser = _Parser(prog="tvsctl", description="Command line of the TVS scanner daemon tvsd.")
     parser.add_argument("--version", action="version", version=f"tvsctl {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
-    for module_name in COMMANDS.values():
+    command = next((a for a in argv if not a.startswith("-")), None)
+    modules = [COMMANDS[command]] if command in COMMANDS else list(dict.fromkeys(COMMANDS.values()))
+    for module_name in modules:
         importlib.import_module(module_name).register(sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     try:
         status: int = args.func(args)

@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Protocol
 
 import numpy as np
-from scipy.signal import savgol_coeffs, savgol_filter
 
 from tvsd.errors import DeviceError, UsageError
 
@@ -170,6 +169,8 @@ def angular_acceleration(rate_rad_s: np.ndarray, fs_hz: float) -> np.ndarray:
     n = 2 * SG_HALF + 1
     if x.size < n:
         return np.gradient(x) * fs_hz if x.size > 1 else np.zeros_like(x)
+    from scipy.signal import savgol_filter  # here: the settings are loaded with every config
+
     return np.asarray(savgol_filter(x, n, 3, deriv=1, delta=1.0 / fs_hz, mode="interp"))
 
 
@@ -179,6 +180,8 @@ class AngularAccelerationStream:
     Reset it at a gap (a new epoch): differentiating across lost samples is meaningless."""
 
     def __init__(self, fs_hz: float) -> None:
+        from scipy.signal import savgol_coeffs
+
         # convolution taps: savgol_coeffs gives them for np.convolve's orientation (use="conv")
         self._taps = savgol_coeffs(2 * SG_HALF + 1, 3, deriv=1, delta=1.0 / fs_hz, use="conv")
         self._tail = np.zeros(0)
