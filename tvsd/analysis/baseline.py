@@ -51,6 +51,7 @@ def static_map(cols: Columns) -> dict[str, float]:
     w, a = p.rows(p.speed), p.rows(p.accel)
     top = float(np.max(np.abs(w))) if len(w) else 0.0
     steady = (np.abs(a) < 0.02 * max(float(np.max(np.abs(a))), 1e-12)) & (np.abs(w) > 0.05 * top)
+    steady &= cols.fit_rows  # the held-out rows stay unseen, here too
     if np.count_nonzero(steady) < 20:
         return {}
     cols_static = [w[steady], np.sign(w[steady])]
