@@ -160,6 +160,37 @@ class Reproduction:
 
 
 @dataclass(frozen=True, kw_only=True)
+class DevicesConfig:
+    """The `devices:` section: which backend stands behind each device interface. `sil` puts the
+    simulated device behind the same interface at its boundary (a pty for the MCU, a register map
+    behind the smbus2 calls for the IMUs); `tvsd --sil` makes every device `sil`."""
+
+    mcu: str = option(
+        "hardware", doc="the microcontroller (motor PWM, encoder, pulses, steppers)", choices=("hardware", "sil")
+    )
+    imu: str = option(
+        "hardware", doc="the two MPU6050s (`off`: no IMU, points marked)", choices=("hardware", "sil", "off")
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class McuConfig:
+    """The `mcu:` section: the serial link (tvsd/hw/mcu, firmware/PROTOCOL.md)."""
+
+    port: str = option("/dev/serial0", doc="serial port of the MCU")
+    baud: int = option(2_000_000, doc="line rate; the firmware's", unit="bit/s", ge=9600)
+    state_rate_hz: float = option(
+        2500.0, doc="state frames per second: the ATmega328P carries 2.5 kHz", unit="Hz", ge=100, le=10000
+    )
+    watchdog_ms: int = option(
+        20, doc="firmware fail-safe: no heartbeat this long → PWM and laser off", unit="ms", ge=5, le=1000
+    )
+    link_timeout_ms: float = option(
+        40.0, doc="no state frame this long → the control thread holds PWM 0", unit="ms", gt=0, le=50
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
 class Config:
     plant: PlantParams = option(doc="drive parameters")
     drive: DriveConfig = option(DriveConfig())
@@ -171,6 +202,8 @@ class Config:
     scan: ScanSettings = option(ScanSettings(), doc="scan pipeline (baseline from geometry)")
     imu: ImuConfig = option(ImuConfig(), doc="the two MPU6050s")
     can: CanSettings = option(CanSettings(), doc="CAN bridge to a robot (off by default)")
+    devices: DevicesConfig = option(DevicesConfig(), doc="hardware or SIL backend per device")
+    mcu: McuConfig = option(McuConfig(), doc="the MCU's serial link")
 
     @property
     def sil_or_default(self) -> SilConfig:
