@@ -166,7 +166,7 @@ class DevicesConfig:
     behind the smbus2 calls for the IMUs); `tvsd --sil` makes every device `sil`."""
 
     mcu: str = option(
-        "hardware", doc="the microcontroller (motor PWM, encoder, pulses, steppers)", choices=("hardware", "sil")
+        "hardware", doc="the MCU (motor PWM, encoder, pulses, steppers)", choices=("hardware", "sil")
     )
     imu: str = option(
         "hardware", doc="the two MPU6050s (`off`: no IMU, points marked)", choices=("hardware", "sil", "off")
