@@ -1,6 +1,7 @@
 """The MCU link: protocol spec, framing, clock sync, the asyncio link and the stepper axes.
 
 One module per concern: ``spec`` (protocol.yaml), ``framing`` (bytes <-> frames), ``messages``
-(typed MCU -> host messages), ``clock`` (MCU ticks -> host time), ``link`` (McuLink on a serial
-port) and ``steppers`` (φ and γ axes in degrees).
+(typed MCU -> host messages), ``clock`` (MCU ticks -> host time), ``placement`` (16/32-bit stamps
+-> the unwrapped tick count), ``link`` (McuLink on a serial port) and ``steppers`` (φ and γ axes in
+degrees).
 """

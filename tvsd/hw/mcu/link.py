@@ -1,4 +1,9 @@
-"""McuLink: the serial link to the MCU on asyncio.
+"""McuLink: the serial link to the MCU on asyncio — transport, requests and dispatch.
+
+It owns the port, the frames in both directions, the heartbeat (link watchdog, round trips for
+the clock sync), the requests (identify, ping, stats) and the typed callbacks. Where a stamp lands
+on the MCU's unwrapped tick count is not its business: it hands state, heartbeat_ack and pulse
+stamps, and every frame loss it sees, to its ``TickPlacer`` (``placement``).
 
 Reading: pyserial opens and configures the port; the event loop reads its descriptor with
 ``add_reader`` (as Moonraker's async_serial does) — no polling thread. Frames are decoded
@@ -32,7 +37,7 @@ from typing import Any
 import serial
 
 from tvsd.errors import ConfigError, DeviceError, ProtocolError, UsageError
-from tvsd.hw.mcu.clock import ClockSettings, ClockSync, unwrap_nearest
+from tvsd.hw.mcu.clock import ClockSettings, ClockSync
 from tvsd.hw.mcu.framing import FrameDecoder, encode_frame
 from tvsd.hw.mcu.messages import (
     Ack,
@@ -46,21 +51,26 @@ from tvsd.hw.mcu.messages import (
     ack_meaning,
     check_against,
 )
+from tvsd.hw.mcu.placement import ACK_SLACK_TICKS, GUESS_SLACK_TICKS, HOLD_MAX, StateSample, TickPlacer
 from tvsd.hw.mcu.spec import FRAME_OVERHEAD, ProtocolSpec, load_spec
+
+__all__ = [
+    "ACK_SLACK_TICKS",
+    "FLASH_HINT",
+    "GUESS_SLACK_TICKS",
+    "HOLD_MAX",
+    "FaultEvent",
+    "LinkSettings",
+    "LinkStats",
+    "McuLink",
+    "PulseEvent",
+    "Refusal",
+    "StateSample",
+    "open_serial",
+]
 
 log = logging.getLogger(__name__)
 
-# A state frame may be stamped a little after a heartbeat_ack it follows in the queue (the tick
-# ISR can run between the ack's timestamp and its frame_send): 64 µs at 16 MHz is ample.
-ACK_SLACK_TICKS = 1024
-# After a loss the 16-bit stamp is placed from the clock fit: a frame is stamped before it arrives,
-# so its count is the latest one with those low bits at or before the arrival mapped to MCU ticks,
-# plus this much for the fit's own error (0.5 ms); right while the frame's latency is under
-# 4.1 ms - 0.5 ms (one ticks16 wrap minus the slack).
-GUESS_SLACK_TICKS = 8000
-# State frames that come before the first heartbeat_ack (their epoch unknown) are held, then
-# placed by that ack and delivered exact; at 10 kHz this is 0.4 s of them.
-HOLD_MAX = 4096
 FLASH_HINT = (
     "flash the firmware of this tvsd version (make -C firmware, then avrdude: hil/README.md, section MCU)"
 )
@@ -87,17 +97,6 @@ class LinkSettings:
         # a frame that cannot fit could never be sent
         if self.tx_buffer_bytes < FRAME_OVERHEAD + 32:
             raise ConfigError(f"mcu.tx_buffer_bytes must be >= 38, got {self.tx_buffer_bytes}")
-
-
-@dataclass(frozen=True, slots=True)
-class StateSample:
-    mcu_ticks: int  # unwrapped to 64 bits (the low 16 bits came on the wire)
-    encoder: int  # unwrapped encoder count
-    host_time: float  # time.monotonic() of arrival
-    # unwrapped along an unbroken chain of frames from a heartbeat_ack; False after a loss or an
-    # outage until the next ack (mcu_ticks placed from the clock fit, possibly off by multiples of
-    # 65536). Frames before the first ack are held and delivered when it places them (exact).
-    exact: bool = True
 
 
 @dataclass(frozen=True, slots=True)
@@ -224,17 +223,7 @@ class McuLink:
         self._identify_waiters: list[asyncio.Future[Identify]] = []
         self._stats_waiters: list[asyncio.Future[McuStats]] = []
         self._rtts: deque[float] = deque(maxlen=settings.rtt_history)
-        self._ticks: int | None = None  # latest unwrapped MCU tick count
-        self._ticks_host = 0.0
-        self._state_ticks: int | None = None
-        self._anchor_ticks: int | None = None  # last state or heartbeat_ack stamp (ticks16 base)
-        self._anchor_lost = 0  # _rx_lost at that anchor
-        self._anchor_exact = False  # the anchor descends from a heartbeat_ack
-        self._rx_lost = 0  # frames lost before the frame being handled (+1 per link outage)
-        self._held: deque[StateSample] = deque()  # state samples before the first heartbeat_ack
-        self._acked = False  # a heartbeat_ack has fixed the tick count's epoch
-        self._encoder: int | None = None
-        self._enc_rate = 0.0  # counts per tick, to unwrap the encoder across gaps
+        self._placer = TickPlacer(self._deliver_state)
         self._event_seq: int | None = None
         handlers: dict[str, Callable[[Any, float], None]] = {
             "identify": self._on_identify,
@@ -488,7 +477,7 @@ class McuLink:
             if self._watchdog is None:
                 self._arm_watchdog()
         for f in frames:
-            self._rx_lost += f.gap  # losses up to this frame, not the whole read's
+            self._placer.note_lost(f.gap)  # losses up to this frame, not the whole read's
             # the decoder only passes ids of m2h messages with their exact payload size
             cls, codec, handler = self._dispatch[f.msg_id]
             try:
@@ -536,16 +525,10 @@ class McuLink:
                 return
         if self._require_loop().time() >= self._last_rx + self.settings.link_timeout_s:
             # the 16-bit stamps cannot be chained across an outage: break the chain
-            self._rx_lost += 1
+            self._placer.note_lost(1)
             self._set_link(False)  # the next frame re-arms the watchdog
         elif self._watchdog is None:  # (reading may have re-armed it)
             self._arm_watchdog()
-
-    def _unwrap32(self, raw: int, now: float) -> int:
-        if self._ticks is None:
-            return raw
-        # events are stamped at most seconds in the past: nearest is right while < 2**31 ticks
-        return unwrap_nearest(raw, 32, self._ticks)
 
     def _on_identify(self, msg: Identify, now: float) -> None:
         for fut in self._identify_waiters:
@@ -555,22 +538,7 @@ class McuLink:
 
     def _on_heartbeat_ack(self, msg: HeartbeatAck, now: float) -> None:
         sent = self._hb_sent.pop(msg.host_us, None)
-        ticks = self._unwrap32(msg.mcu_ticks, now)
-        self._ticks, self._ticks_host = ticks, now  # the full counter is authoritative
-        lost = self._rx_lost
-        # The MCU queues frames in order: the last state frame received was stamped before this
-        # ack, and the next one after it, give or take an ISR (ACK_SLACK_TICKS), and the state
-        # period is capped below one ticks16 wrap. With no frame lost in between, both are exact.
-        chained = self._state_ticks is not None and lost == self._anchor_lost
-        if chained and self._state_ticks is not None:
-            top = ticks + ACK_SLACK_TICKS
-            placed = top - ((top - self._state_ticks) & 0xFFFF)
-            self._release_held(placed - self._state_ticks)
-            self._state_ticks = placed
-        self._release_held(None)  # not chained to this ack: their epoch stays unknown
-        self._acked = True
-        self._anchor_ticks, self._anchor_lost = ticks - ACK_SLACK_TICKS, lost
-        self._anchor_exact = True
+        ticks = self._placer.on_heartbeat_ack(msg.mcu_ticks, now)
         if sent is None:
             return  # an answer to a heartbeat we gave up on
         rtt = now - sent
@@ -585,77 +553,12 @@ class McuLink:
         if fut is not None and not fut.done():
             fut.set_result(rtt)
 
-    def _release_held(self, shift: int | None) -> None:
-        """Deliver the held pre-ack samples moved by `shift` ticks (exact), or drop them."""
-        held, self._held = self._held, deque()
-        if shift is None:
-            self._stats.states_unanchored += len(held)
-            return
-        for s in held:
-            self._deliver_state(StateSample(s.mcu_ticks + shift, s.encoder, s.host_time, True))
-
     def _deliver_state(self, sample: StateSample) -> None:
         if self.on_state is not None:
             self.on_state(sample)
 
-    def _place_after_loss(self, ticks16: int, now: float) -> int:
-        """The count of a state frame that follows a loss: the latest with these low bits that
-        was stamped before the frame arrived (clock fit, else the last count and the host clock),
-        and after the last stamp seen."""
-        clock = self.clock
-        if clock is not None and clock.fit_ is not None:
-            latest = clock.to_ticks(now) + GUESS_SLACK_TICKS
-        else:
-            hz = self.identity.clock_hz if self.identity is not None else 0
-            assert self._ticks is not None
-            latest = self._ticks + int(max(0.0, now - self._ticks_host) * hz) + GUESS_SLACK_TICKS
-        ticks = latest - ((latest - ticks16) & 0xFFFF)
-        if self._anchor_ticks is not None and ticks <= self._anchor_ticks:
-            ticks += (((self._anchor_ticks - ticks) >> 16) + 1) << 16  # frames come in order
-        return ticks
-
     def _on_state(self, msg: State, now: float) -> None:
-        # ticks16 is the low half of the MCU's tick counter (16 MHz: it wraps every 4.1 ms; the
-        # firmware caps the state period at 4 ms): unwrap it forward from the last state frame
-        # or heartbeat_ack, as long as no frame was lost since.
-        lost = self._rx_lost
-        anchor = self._anchor_ticks
-        chained = anchor is not None and lost == self._anchor_lost
-        # exact only along a chain that starts at a heartbeat_ack: before the first one the
-        # count's upper bits (and so its epoch) are unknown
-        exact = chained and self._anchor_exact
-        if anchor is not None and chained:
-            ticks = anchor + ((msg.ticks16 - anchor) & 0xFFFF)
-        elif self._ticks is not None and self._acked:
-            # After a loss, place it from the clock (flagged: a latency over ~3.6 ms makes it a
-            # wrap off); the next heartbeat_ack restores the exact count.
-            ticks = self._place_after_loss(msg.ticks16, now)
-        else:
-            ticks = msg.ticks16
-        self._anchor_ticks, self._anchor_lost, self._anchor_exact = ticks, lost, exact
-        enc = msg.encoder16
-        prev = self._state_ticks
-        if self._encoder is not None and prev is not None:
-            # predicted from the last speed: right across gaps shorter than a 32768-count move
-            dt = ticks - prev
-            enc = unwrap_nearest(msg.encoder16, 16, self._encoder + round(self._enc_rate * dt))
-            if chained and dt > 0:
-                self._enc_rate = (enc - self._encoder) / dt
-        self._state_ticks, self._encoder = ticks, enc
-        sample = StateSample(ticks, enc, now, exact)
-        if not self._acked:
-            # Before the first heartbeat_ack the count's upper bits are unknown: hold the samples
-            # (only an unbroken chain can be placed by the ack; a loss drops those before it).
-            if not chained:
-                self._release_held(None)
-            self._held.append(sample)
-            if len(self._held) > HOLD_MAX:
-                self._held.popleft()
-                self._stats.states_unanchored += 1
-            return
-        if exact and ticks > (self._ticks or 0):
-            self._ticks, self._ticks_host = ticks, now
-        self._deliver_state(sample)
+        self._placer.on_state(msg.ticks16, msg.encoder16, now, self.clock)
 
     def _on_pulse(self, msg: Pulse, now: float) -> None:
         # event_seq counts pulse events of all channels together (see the protocol notes)
@@ -665,7 +568,7 @@ class McuLink:
                 return
             self._stats.lost_events += gap
         self._event_seq = msg.event_seq
-        ticks = self._unwrap32(msg.mcu_ticks, now)
+        ticks = self._placer.unwrap32(msg.mcu_ticks)
         host = self.clock.to_host(ticks) if self.clock is not None else math.nan
         name = self.spec.pulse_channels.get(msg.channel, f"channel{msg.channel}")
         if self.on_pulse is not None:
@@ -718,6 +621,7 @@ class McuLink:
         st = self._stats
         st.frames_rx, st.crc_errors, st.bad_headers = d.frames, d.crc_errors, d.bad_headers
         st.resyncs, st.bytes_dropped = d.resyncs, d.bytes_dropped
+        st.states_unanchored = self._placer.unanchored
         st.lost_frames, st.duplicates = d.lost_frames, d.duplicates
         if self._rtts:
             st.rtt_p50_s = statistics.median(self._rtts)
