@@ -1,4 +1,4 @@
-"""Blocking JSON-RPC 2.0 client of tvsd's Unix socket, for tvsctl (protocol: tvsd/daemon/rpc.py).
+"""Blocking JSON-RPC 2.0 client of tvsd's Unix socket, for tvsctl (protocol: tvsd/daemon/rpc_protocol.py).
 
 Error replies become TvsdError subclasses carrying the daemon's message, so tvsctl prints one line
 and exits with the documented status: invalid params → 2, device error → 3, anything else → 1.
@@ -19,7 +19,7 @@ from tvsd.errors import DaemonUnavailable, DeviceError, TvsdError, UsageError
 DEFAULT_SOCKET = Path("/run/tvsd/tvsd.sock")
 ENV_SOCKET = "TVSD_SOCKET"
 
-# Same numbers as tvsd.daemon.rpc (not imported: tvsctl must start fast and without the daemon's deps).
+# Same numbers as tvsd.daemon.rpc_protocol (not imported: tvsctl must start fast, without daemon deps).
 INVALID_PARAMS = -32602
 DEVICE_ERROR = -32001
 

@@ -1,23 +1,9 @@
-"""JSON-RPC 2.0 over a Unix socket: newline-delimited JSON, one object (or batch array) per line.
+"""The JSON-RPC 2.0 server: a Unix socket, newline-delimited JSON, one object (or batch array) per line.
 
-The daemon hands `RpcServer` a table of ``async def`` methods; the server checks each call's params
-against the method's signature and type hints (float/int/str/bool/list/dict) before calling it, so a
-method body only sees well-typed arguments. Params may come by name (object) or by position (array).
-
-Error codes (``error.code`` of a reply):
-
-====== ================ =====================================================================
-code   name             meaning
-====== ================ =====================================================================
--32700 PARSE_ERROR      the line is not JSON (NaN/Infinity are refused too); id is null
--32600 INVALID_REQUEST  valid JSON but not a request, or a line longer than ``max_message``
-                        (that connection is then closed; the daemon keeps serving the others)
--32601 METHOD_NOT_FOUND ``error.data`` lists the methods offered
--32602 INVALID_PARAMS   the message names the parameter, what was seen and what is expected
--32603 INTERNAL_ERROR   a method raised something unexpected: a bug, logged with its traceback
--32001 DEVICE_ERROR     the scanner (MCU, motor, IMU, laser) refused or failed the request
--32002 STATE_ERROR      the request does not fit the daemon's state (e.g. aim while not scanning)
-====== ================ =====================================================================
+This module owns the transport: the socket file (stale ones replaced, a running daemon refused),
+the connections and their framing, and the subscriptions. What one message must look like — the
+request checks, method lookup, params binding and the error codes — is `tvsd.daemon.rpc_protocol`
+(its names are re-exported here). The daemon hands `RpcServer` a table of ``async def`` methods.
 
 Built-in methods: ``subscribe(topic)`` and ``unsubscribe(topic)``. `RpcServer.publish` pushes
 ``{"jsonrpc": "2.0", "method": topic, "params": ...}`` to every client subscribed to ``topic``. It
@@ -33,54 +19,59 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
-import inspect
-import json
 import logging
-import math
 import os
 import stat
 import tempfile
 import threading
 import time
-import types
-import typing
-from collections.abc import Awaitable, Callable, Collection, Mapping
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any
 
+from tvsd.daemon.rpc_protocol import (
+    DEVICE_ERROR,
+    INTERNAL_ERROR,
+    INVALID_PARAMS,
+    INVALID_REQUEST,
+    METHOD_NOT_FOUND,
+    PARSE_ERROR,
+    STATE_ERROR,
+    Method,
+    MethodTable,
+    RpcError,
+    clean,
+    decode,
+    dumps,
+    error_reply,
+    parse_request,
+    reply_to_error,
+    result_reply,
+)
 from tvsd.errors import EXIT_FAILURE, EXIT_USAGE, TvsdError
+
+__all__ = [
+    "DEVICE_ERROR",
+    "INTERNAL_ERROR",
+    "INVALID_PARAMS",
+    "INVALID_REQUEST",
+    "METHOD_NOT_FOUND",
+    "PARSE_ERROR",
+    "SOCKET_PATH_MAX",
+    "STATE_ERROR",
+    "DaemonAlreadyRunning",
+    "Method",
+    "RpcError",
+    "RpcServer",
+    "SocketPathError",
+    "ThreadedRpcServer",
+    "bench_rpc",
+]
 
 log = logging.getLogger(__name__)
 
-PARSE_ERROR = -32700
-INVALID_REQUEST = -32600
-METHOD_NOT_FOUND = -32601
-INVALID_PARAMS = -32602
-INTERNAL_ERROR = -32603
-DEVICE_ERROR = -32001
-STATE_ERROR = -32002
-
-Method = Callable[..., Awaitable[object]]
-
 SOCKET_PATH_MAX = 107  # sun_path is 108 bytes on Linux, NUL included
 _BUILTINS = ("subscribe", "unsubscribe")
-
-
-class RpcError(Exception):
-    """Raised by a method to reply with a JSON-RPC error instead of a result."""
-
-    def __init__(self, code: int, message: str, data: object | None = None) -> None:
-        super().__init__(message)
-        self.code = code
-        self.message = message
-        self.data = data
-
-    def to_json(self) -> dict[str, object]:
-        err: dict[str, object] = {"code": self.code, "message": self.message}
-        if self.data is not None:
-            err["data"] = self.data
-        return err
 
 
 class SocketPathError(TvsdError, OSError):
@@ -93,173 +84,6 @@ class DaemonAlreadyRunning(TvsdError, FileExistsError):
     """Another daemon answers on the socket."""
 
     exit_status = EXIT_FAILURE
-
-
-# --- params --------------------------------------------------------------------------------------
-
-_KINDS: dict[type, tuple[str, tuple[type, ...]]] = {
-    float: ("a number", (int, float)),
-    int: ("an integer", (int,)),
-    str: ("a string", (str,)),
-    bool: ("true or false", (bool,)),
-    list: ("an array", (list,)),
-    dict: ("an object", (dict,)),
-}
-
-
-def _json_type(value: object) -> str:
-    names = {bool: "boolean", int: "integer", float: "number", str: "string", list: "array", dict: "object"}
-    return "null" if value is None else names.get(type(value), type(value).__name__)
-
-
-def _seen(value: object) -> str:
-    text = json.dumps(value)
-    return f"{_json_type(value)} {text if len(text) <= 40 else text[:37] + '...'}"
-
-
-@dataclasses.dataclass(frozen=True)
-class _Param:
-    name: str
-    hint: object  # a type, a union of types, or None when not checkable
-    required: bool
-
-    def describe(self) -> str:
-        return f"{self.name}: {_hint_name(self.hint)}" if self.hint is not None else self.name
-
-
-def _hint_name(hint: object) -> str:
-    if isinstance(hint, type):
-        return hint.__name__
-    return str(hint).replace("typing.", "")
-
-
-def _plain_types(hint: object) -> tuple[type, ...] | None:
-    """The checkable base types of a hint (``float | None`` → (float, NoneType)), or None."""
-    origin = typing.get_origin(hint)
-    if origin in (typing.Union, types.UnionType):
-        parts = [_plain_types(a) for a in typing.get_args(hint)]
-        if any(p is None for p in parts):
-            return None
-        return tuple(t for p in parts if p is not None for t in p)
-    if hint is type(None):
-        return (type(None),)
-    base = origin if origin is not None else hint
-    return (base,) if base in _KINDS else None
-
-
-class _Signature:
-    """What a method accepts, read once from its signature and type hints."""
-
-    def __init__(self, name: str, fn: Method) -> None:
-        self.name = name
-        sig = inspect.signature(fn)
-        try:
-            hints = typing.get_type_hints(fn)
-        except Exception:  # unresolvable annotations: check arity only
-            hints = {}
-        self.params: list[_Param] = []
-        self.var_kw = False
-        for p in sig.parameters.values():
-            if p.kind in (p.VAR_POSITIONAL, p.POSITIONAL_ONLY):
-                raise ValueError(
-                    f"method {name!r}: parameter {p.name!r} cannot be given by name; use plain parameters"
-                )
-            if p.kind is p.VAR_KEYWORD:
-                self.var_kw = True
-            else:
-                types_ = _plain_types(hints.get(p.name))
-                self.params.append(
-                    _Param(p.name, hints.get(p.name) if types_ else None, p.default is p.empty)
-                )
-
-    def expected(self) -> str:
-        return ", ".join(p.describe() for p in self.params) or "no parameters"
-
-    def bind(self, params: object) -> dict[str, Any]:
-        """Keyword arguments for the method, or RpcError(INVALID_PARAMS) naming the bad parameter."""
-        by_name = {p.name: p for p in self.params}
-        if params is None:
-            given: dict[str, Any] = {}
-        elif isinstance(params, list):
-            if len(params) > len(self.params):
-                raise self._error(
-                    f"takes {len(self.params)} parameter(s) ({self.expected()}), got {len(params)}"
-                )
-            given = {p.name: v for p, v in zip(self.params, params, strict=False)}
-        else:
-            assert isinstance(params, dict)
-            given = dict(params)
-            unknown = [k for k in given if k not in by_name]
-            if unknown and not self.var_kw:
-                raise self._error(f"unknown parameter {unknown[0]!r}; expected {self.expected()}")
-        for p in self.params:
-            if p.name not in given:
-                if p.required:
-                    raise self._error(f"missing parameter {p.describe()}")
-                continue
-            given[p.name] = self._check(p, given[p.name])
-        return given
-
-    def _check(self, p: _Param, value: object) -> object:
-        allowed = _plain_types(p.hint) if p.hint is not None else None
-        if allowed is None:
-            return value
-        ok = any(
-            isinstance(value, _KINDS[t][1]) and not (isinstance(value, bool) and t is not bool)
-            if t in _KINDS
-            else isinstance(value, t)
-            for t in allowed
-        )
-        if not ok:
-            want = " or ".join("null" if t is type(None) else _KINDS[t][0] for t in allowed)
-            raise self._error(
-                f"parameter {p.name!r} must be {want} ({_hint_name(p.hint)}), got {_seen(value)}"
-            )
-        if float in allowed and int not in allowed and type(value) is int:
-            return float(value)
-        return value
-
-    def _error(self, text: str) -> RpcError:
-        return RpcError(INVALID_PARAMS, f"{self.name}: {text}")
-
-
-# --- JSON ----------------------------------------------------------------------------------------
-
-
-def _refuse_constant(name: str) -> object:
-    raise ValueError(f"{name} is not JSON")
-
-
-def _clean(obj: Any) -> Any:
-    """Something json.dumps can write: non-finite floats → null, dataclasses, numpy scalars/arrays."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, (str, int, bool)) or obj is None:
-        return obj
-    if isinstance(obj, Mapping):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return _clean(dataclasses.asdict(obj))
-    if hasattr(obj, "tolist"):  # numpy scalars and arrays
-        return _clean(obj.tolist())
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"{type(obj).__name__} is not JSON-serialisable")
-
-
-def _dumps(obj: object) -> bytes:
-    return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode() + b"\n"
-
-
-def _error_reply(req_id: object, err: RpcError) -> dict[str, object]:
-    return {"jsonrpc": "2.0", "id": req_id, "error": err.to_json()}
-
-
-def _valid_id(req: Mapping[str, object]) -> object:
-    rid = req.get("id")
-    return rid if isinstance(rid, (str, int, float)) and not isinstance(rid, bool) else None
 
 
 # --- server --------------------------------------------------------------------------------------
@@ -313,9 +137,8 @@ class RpcServer:
         self.mode = mode
         self.queue_size = queue_size
         self.topics = frozenset(topics) if topics is not None else None
-        self._methods = dict(methods)
-        self._sigs = {name: _Signature(name, fn) for name, fn in methods.items()}
-        self._builtin_sigs = {name: _Signature(name, _topic_method) for name in _BUILTINS}
+        self._methods = MethodTable(methods, also_offered=_BUILTINS)
+        self._builtins = MethodTable(dict.fromkeys(_BUILTINS, _topic_method))
         self._server: asyncio.AbstractServer | None = None
         self._clients: set[_Client] = set()
         self._inode: int | None = None
@@ -405,7 +228,7 @@ class RpcServer:
             if topic not in client.topics:
                 continue
             if line is None:
-                line = _dumps({"jsonrpc": "2.0", "method": topic, "params": _clean(params)})
+                line = dumps({"jsonrpc": "2.0", "method": topic, "params": clean(params)})
             try:
                 client.queue.put_nowait(line)
             except asyncio.QueueFull:
@@ -432,7 +255,7 @@ class RpcServer:
                         f"message longer than {self.max_message} bytes; closing this connection "
                         "(send one JSON object per line)",
                     )
-                    await client.write(_dumps(_error_reply(None, err)))
+                    await client.write(dumps(error_reply(None, err)))
                     break
                 if not line:
                     break
@@ -449,17 +272,14 @@ class RpcServer:
         if not line.strip():
             return None
         try:
-            msg = json.loads(line, parse_constant=_refuse_constant)
-        except (ValueError, RecursionError) as exc:
+            msg = decode(line)
+        except RpcError as err:
             self._counts["errors"] += 1
-            text = f"not JSON ({exc}); send one JSON-RPC 2.0 object per line"
-            return _dumps(_error_reply(None, RpcError(PARSE_ERROR, text)))
+            return dumps(error_reply(None, err))
         if isinstance(msg, list):
             if not msg:
                 self._counts["errors"] += 1
-                return _dumps(
-                    _error_reply(None, RpcError(INVALID_REQUEST, "empty batch: send [] of requests"))
-                )
+                return dumps(error_reply(None, RpcError(INVALID_REQUEST, "empty batch: send [] of requests")))
             replies = await asyncio.gather(*(self._handle(m, client) for m in msg))
             done = [r for r in replies if r is not None]
             return self._encode(done) if done else None
@@ -468,60 +288,33 @@ class RpcServer:
 
     def _encode(self, reply: object) -> bytes:
         try:
-            return _dumps(reply)
-        except (TypeError, ValueError) as exc:  # unreachable for replies built from _clean'd results
+            return dumps(reply)
+        except (TypeError, ValueError) as exc:  # unreachable for replies built from clean'd results
             self._counts["errors"] += 1
-            return _dumps(_error_reply(None, RpcError(INTERNAL_ERROR, f"reply is not JSON: {exc}")))
+            return dumps(error_reply(None, RpcError(INTERNAL_ERROR, f"reply is not JSON: {exc}")))
 
     async def _handle(self, msg: object, client: _Client) -> dict[str, object] | None:
         self._counts["requests"] += 1
         try:
-            method, params, req_id, notify = self._parse_request(msg)
-            result = _clean(await self._call(method, params, client))
+            req = parse_request(msg)
+            result = clean(await self._call(req.method, req.params, client))
         except RpcError as err:
             self._counts["errors"] += 1
-            if isinstance(msg, dict) and "id" not in msg and err.code != INVALID_REQUEST:
-                return None
-            return _error_reply(_valid_id(msg) if isinstance(msg, dict) else None, err)
+            return reply_to_error(msg, err)
         except Exception as exc:
             self._counts["errors"] += 1
             name = msg.get("method") if isinstance(msg, dict) else None
             log.exception("JSON-RPC method %r failed", name)
-            if isinstance(msg, dict) and "id" not in msg:
-                return None
             bug = RpcError(INTERNAL_ERROR, f"{name}: internal error ({type(exc).__name__}: {exc})")
-            return _error_reply(_valid_id(msg) if isinstance(msg, dict) else None, bug)
-        return None if notify else {"jsonrpc": "2.0", "id": req_id, "result": result}
-
-    def _parse_request(self, msg: object) -> tuple[str, object, object, bool]:
-        def bad(text: str) -> RpcError:
-            return RpcError(INVALID_REQUEST, f"not a JSON-RPC 2.0 request: {text}")
-
-        if not isinstance(msg, dict):
-            raise bad(f"expected an object, got {_seen(msg)}")
-        if msg.get("jsonrpc") != "2.0":
-            raise bad(f'"jsonrpc" must be "2.0", got {_seen(msg.get("jsonrpc"))}')
-        method = msg.get("method")
-        if not isinstance(method, str):
-            raise bad(f'"method" must be a string, got {_seen(method)}')
-        params = msg.get("params")
-        if "params" in msg and not isinstance(params, (list, dict)):
-            raise bad(f'"params" must be an array or an object, got {_seen(params)}')
-        if "id" in msg and msg["id"] is not None and _valid_id(msg) is None:
-            raise bad(f'"id" must be a string, a number or null, got {_seen(msg["id"])}')
-        return method, params, msg.get("id"), "id" not in msg
+            return reply_to_error(msg, bug)
+        return None if req.notify else result_reply(req.id, result)
 
     async def _call(self, method: str, params: object, client: _Client) -> object:
         if method in _BUILTINS:
-            topic = self._builtin_sigs[method].bind(params)["topic"]
-            return self._subscribe(client, topic, on=method == "subscribe")
-        fn = self._methods.get(method)
-        if fn is None:
-            offered = sorted([*self._methods, *_BUILTINS])
-            raise RpcError(
-                METHOD_NOT_FOUND, f"unknown method {method!r}; tvsd offers: {', '.join(offered)}", offered
-            )
-        return await fn(**self._sigs[method].bind(params))
+            _, kwargs = self._builtins.bind(method, params)
+            return self._subscribe(client, kwargs["topic"], on=method == "subscribe")
+        fn, kwargs = self._methods.bind(method, params)
+        return await fn(**kwargs)
 
     def _subscribe(self, client: _Client, topic: str, on: bool = True) -> dict[str, object]:
         if self.topics is not None and topic not in self.topics:
