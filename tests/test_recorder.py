@@ -1,4 +1,4 @@
-"""The daemon's recorder: round trip, kill -9, damaged bytes, a stalled disk, and `tvsctl export`."""
+"""The recorder and its reader: round trip, kill -9, damaged bytes, a stalled disk, `tvsctl export`."""
 
 from __future__ import annotations
 
@@ -14,8 +14,10 @@ import numpy as np
 import pytest
 
 from tvsd.cli import main as cli
-from tvsd.daemon import recorder as R
-from tvsd.daemon.recorder import LOOP_FIELDS, Recorder, open_recording
+from tvsd.daemon import recording_format as F
+from tvsd.daemon.recorder import Recorder
+from tvsd.daemon.recording_format import LOOP_FIELDS
+from tvsd.daemon.recording_reader import open_recording
 from tvsd.errors import UsageError
 from tvsd.recording import read as read_csv
 
@@ -36,9 +38,9 @@ def _loop_rows(start: int, n: int, rate: float = 1000.0) -> np.ndarray:
 def _records(seg: Path) -> list[tuple[int, int, int]]:
     """(offset, kind, end) of every record of a clean segment."""
     data = seg.read_bytes()
-    out, pos = [], len(R.MAGIC)
+    out, pos = [], len(F.MAGIC)
     while pos < len(data):
-        found = R._record_at(data, pos)
+        found = F.record_at(data, pos)
         assert found is not None, f"clean segment has a bad record at {pos}"
         out.append((pos, found[0], found[3]))
         pos = found[3]
@@ -71,7 +73,7 @@ def test_round_trip_channels_marks_config_and_segments(tmp_path):
     assert np.array_equal(got.channels["imu"]["gyro"], gyro)
     assert np.all(got.channels["imu"]["sensor"] == 1)
     assert [m["event"] for m in got.marks] == ["state", "fault"] and got.marks[0]["rps"] == 25
-    assert got.config_text == CONFIG and got.header["format"] == R.FORMAT_VERSION
+    assert got.config_text == CONFIG and got.header["format"] == F.FORMAT_VERSION
     assert got.closed_cleanly and got.stats is not None
     assert got.stats["channels"]["loop"] == {"rows": 1000, "dropped_rows": 0, "dropped_batches": 0}
     assert (got.corrupt_records, got.torn_tail_bytes, got.problems) == (0, 0, [])
@@ -148,8 +150,8 @@ def test_kill_9_loses_at_most_the_last_second(tmp_path):
 def test_a_damaged_byte_loses_only_its_record(tmp_path, where):
     path = tmp_path / "rec"
     _write_batches(path, batches=20, size=50)
-    seg = path / R.segment_name(0)
-    data = [r for r in _records(seg) if r[1] == R.DATA]
+    seg = path / F.segment_name(0)
+    data = [r for r in _records(seg) if r[1] == F.DATA]
     off, _, end = data[10]  # the 11th batch: rows 500..549
     raw = bytearray(seg.read_bytes())
     raw[(off + end) // 2 if where == "payload" else off + 5] ^= 0x40
@@ -161,12 +163,12 @@ def test_a_damaged_byte_loses_only_its_record(tmp_path, where):
     assert got.torn_tail_bytes == 0 and len(got.problems) == 1
 
 
-@pytest.mark.parametrize("keep", [3, R.RECORD.size, R.RECORD.size + 100])
+@pytest.mark.parametrize("keep", [3, F.RECORD.size, F.RECORD.size + 100])
 def test_torn_tail_is_reported_not_raised(tmp_path, keep):
     path = tmp_path / "rec"
     _write_batches(path, batches=5, size=50)
-    seg = path / R.segment_name(0)
-    last_off = [r for r in _records(seg) if r[1] == R.DATA][-1][0]
+    seg = path / F.segment_name(0)
+    last_off = [r for r in _records(seg) if r[1] == F.DATA][-1][0]
     with seg.open("r+b") as fh:  # the writer died `keep` bytes into its last batch
         fh.truncate(last_off + keep)
     got = open_recording(path)

@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from tvsd.cli.output import warn
-from tvsd.daemon.recorder import LOOP_CHANNEL, flatten_config, open_recording
+from tvsd.daemon.recording_format import LOOP_CHANNEL
+from tvsd.daemon.recording_reader import flatten_config, open_recording
 from tvsd.errors import EXIT_OK, DataFileError, UsageError
 from tvsd.recording import write
 

@@ -1,33 +1,17 @@
-"""The daemon's recorder: everything, append-only, crash-safe; and its reader.
+"""The daemon's recorder: the writer of a recording — everything, append-only, crash-safe.
 
 Producers (the 10 kHz thread's batches, the IMU reader, the scan pipeline, the event loop) call
 ``Channel.append(array)``, which copies the rows and hands them to a writer thread without ever
 blocking: if more than ``max_pending_bytes`` wait for the disk, the batch is dropped and counted.
 
-Format (one recording = one directory of segment files ``seg-00000.tvsrec``, ``seg-00001.tvsrec``...;
-little-endian throughout)::
-
-    segment  = MAGIC (8 bytes b"TVSREC\\x00\\x01") record*
-    record   = sync b"\\xa5R" | kind u8 | channel u16 | length u32 | crc32 u32 | payload[length]
-    crc32    = zlib.crc32 over (sync, kind, channel, length) then the payload
-
-    kind 0 HEADER   JSON {"format": 1, "segment": k, "started_utc": ..., "started_unix": ...}
-    kind 1 CONFIG   the config the daemon runs with, as UTF-8 text
-    kind 2 CHANNEL  JSON {"id": n, "name": ..., "fields": numpy dtype.descr}  (declares channel n)
-    kind 3 DATA     rows of channel n: the raw bytes of a numpy structured array of its dtype
-    kind 4 MARK     JSON {"t_unix": ..., "event": ..., <fields>}  (state changes, faults, notes)
-    kind 5 STATS    JSON {"final": bool, "channels": {name: {"rows", "dropped_rows", "dropped_batches"}},
-                    "dropped_marks": n}  written every fsync when drops changed, and at close
-
-Every segment starts with HEADER, CONFIG and the CHANNEL records of all channels declared so far,
-so each one reads on its own. A segment is closed and the next one begun past ``segment_bytes``.
+It owns writing only. The bytes on disk are `tvsd.daemon.recording_format`; reading them back,
+damage included, is `tvsd.daemon.recording_reader` (``open_recording``, re-exported here with the
+loop-channel convention for the daemon and its tests).
 
 Crash safety: the writer hands its buffer to the kernel (``os.write``) every ``flush_interval_s``
 (0.2 s) and fsyncs every ``fsync_interval_s`` (1 s). ``kill -9`` of the daemon loses only what had
 not reached the kernel: at most ~flush_interval_s plus the queue's backlog; a power cut loses at
-most the last fsync interval. The reader checks every record's CRC: a damaged record is skipped by
-searching for the next sync whose record checks out, and counted (``corrupt_records``); bytes after
-the last good record of the last segment are a torn tail (``torn_tail_bytes``), reported, not raised.
+most the last fsync interval. The reader then finds a torn tail at most, reported, not raised.
 """
 
 from __future__ import annotations
@@ -36,12 +20,10 @@ import contextlib
 import json
 import os
 import queue
-import struct
 import threading
 import time
-import zlib
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -49,27 +31,34 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
-from tvsd.errors import DataFileError, UsageError
+from tvsd.daemon.recording_format import (
+    CHANNEL,
+    CONFIG,
+    DATA,
+    FORMAT_VERSION,
+    HEADER,
+    LOOP_CHANNEL,
+    LOOP_FIELDS,
+    MAGIC,
+    MARK,
+    SEGMENT_GLOB,
+    STATS,
+    encode,
+    segment_name,
+)
+from tvsd.daemon.recording_reader import RecordingFile, flatten_config, open_recording
+from tvsd.errors import UsageError
 
-MAGIC = b"TVSREC\x00\x01"
-SYNC = b"\xa5R"
-RECORD = struct.Struct("<2sBHII")  # sync, kind, channel, length, crc32
-HEADER, CONFIG, CHANNEL, DATA, MARK, STATS = range(6)
-FORMAT_VERSION = 1
-SEGMENT_GLOB = "seg-*.tvsrec"
-
-# The convention `tvsctl export` relies on: the loop's decimated signals in SI units.
-LOOP_CHANNEL = "loop"
-LOOP_FIELDS = (("t", "<f8"), ("u", "<f8"), ("omega", "<f8"), ("phi", "<f8"))
-
-
-def encode(kind: int, channel: int, payload: bytes) -> bytes:
-    head = struct.pack("<2sBHI", SYNC, kind, channel, len(payload))
-    return head + struct.pack("<I", zlib.crc32(payload, zlib.crc32(head))) + payload
-
-
-def segment_name(index: int) -> str:
-    return f"seg-{index:05d}.tvsrec"
+__all__ = [
+    "LOOP_CHANNEL",
+    "LOOP_FIELDS",
+    "Channel",
+    "ChannelStats",
+    "Recorder",
+    "RecordingFile",
+    "flatten_config",
+    "open_recording",
+]
 
 
 @dataclass
@@ -323,148 +312,3 @@ class Recorder:
 
 def _channel_payload(ch: Channel) -> bytes:
     return json.dumps({"id": ch.id, "name": ch.name, "fields": ch.dtype.descr}).encode()
-
-
-# -- reader ------------------------------------------------------------------------------------
-@dataclass
-class RecordingFile:
-    """What open_recording() found: channels as structured arrays, and what was damaged."""
-
-    path: Path
-    segments: list[Path]
-    config_text: str
-    header: dict[str, Any]
-    channels: dict[str, np.ndarray]
-    marks: list[dict[str, Any]]
-    stats: dict[str, Any] | None  # the last STATS record; stats["final"] only after close()
-    corrupt_records: int = 0  # damaged regions skipped inside the recording
-    corrupt_bytes: int = 0
-    torn_tail_bytes: int = 0  # partial record at the very end (the writer was killed mid-write)
-    problems: list[str] = field(default_factory=list)
-
-    @property
-    def closed_cleanly(self) -> bool:
-        return bool(self.stats and self.stats.get("final"))
-
-
-def open_recording(path: str | Path) -> RecordingFile:
-    """Read a recording directory (or one segment file). Damage is counted, never raised."""
-    path = Path(path)
-    if path.is_dir():
-        segments = sorted(path.glob(SEGMENT_GLOB))
-        if not segments:
-            raise DataFileError(f"{path}: not a tvsd recording (no {SEGMENT_GLOB} segment files in it)")
-    elif path.is_file():
-        segments = [path]
-    else:
-        raise DataFileError(f"{path}: no such recording (expected a directory written by the recorder)")
-    rec = RecordingFile(path, segments, "", {}, {}, [], None)
-    parts: dict[str, list[np.ndarray]] = {}
-    for k, seg in enumerate(segments):
-        _read_segment(seg, rec, parts, last=k == len(segments) - 1)
-    for name, chunks in parts.items():
-        rec.channels[name] = np.concatenate(chunks) if len(chunks) > 1 else chunks[0]
-    return rec
-
-
-def _read_segment(seg: Path, rec: RecordingFile, parts: dict[str, list[np.ndarray]], last: bool) -> None:
-    try:
-        data = seg.read_bytes()
-    except OSError as exc:
-        raise DataFileError(f"{seg}: cannot read: {exc.strerror}") from exc
-    if not data.startswith(MAGIC):
-        raise DataFileError(f"{seg}: not a tvsd recording segment (does not start with {MAGIC!r})")
-    dtypes: dict[int, tuple[str, np.dtype[Any]]] = {}
-    pos = len(MAGIC)
-    while pos < len(data):
-        found = _record_at(data, pos)
-        if found is None:
-            nxt = _resync(data, pos + 1)
-            if nxt is None and last:
-                rec.torn_tail_bytes = len(data) - pos
-                rec.problems.append(f"{seg.name}: torn tail of {len(data) - pos} bytes at offset {pos}")
-                return
-            end = len(data) if nxt is None else nxt
-            rec.corrupt_records += 1
-            rec.corrupt_bytes += end - pos
-            rec.problems.append(f"{seg.name}: {end - pos} damaged bytes skipped at offset {pos}")
-            pos = end
-            continue
-        kind, cid, payload, pos = found
-        _apply(kind, cid, payload, rec, dtypes, parts, seg)
-
-
-def _apply(
-    kind: int,
-    cid: int,
-    payload: bytes,
-    rec: RecordingFile,
-    dtypes: dict[int, tuple[str, np.dtype[Any]]],
-    parts: dict[str, list[np.ndarray]],
-    seg: Path,
-) -> None:
-    if kind == HEADER:
-        rec.header = rec.header or json.loads(payload)
-    elif kind == CONFIG:
-        rec.config_text = rec.config_text or payload.decode("utf-8", "replace")
-    elif kind == CHANNEL:
-        decl = json.loads(payload)
-        fields = [tuple(f) if len(f) == 2 else (f[0], f[1], tuple(f[2])) for f in decl["fields"]]
-        dtypes[decl["id"]] = (decl["name"], np.dtype(fields))
-    elif kind == DATA:
-        if cid not in dtypes:  # its declaration was in a damaged record
-            rec.problems.append(f"{seg.name}: data of undeclared channel {cid} skipped")
-            return
-        name, dtype = dtypes[cid]
-        parts.setdefault(name, []).append(np.frombuffer(payload, dtype))
-    elif kind == MARK:
-        rec.marks.append(json.loads(payload))
-    elif kind == STATS and payload:
-        rec.stats = json.loads(payload)
-
-
-def _record_at(data: bytes, pos: int) -> tuple[int, int, bytes, int] | None:
-    """The record starting at pos if it is whole and its CRC checks out."""
-    end = pos + RECORD.size
-    if end > len(data):
-        return None
-    sync, kind, cid, length, crc = RECORD.unpack_from(data, pos)
-    if sync != SYNC or kind > STATS or end + length > len(data):
-        return None
-    payload = data[end : end + length]
-    if zlib.crc32(payload, zlib.crc32(data[pos : pos + RECORD.size - 4])) != crc:
-        return None
-    return kind, cid, payload, end + length
-
-
-def _resync(data: bytes, start: int) -> int | None:
-    """Offset of the next whole, CRC-valid record at or after start (a false sync fails its CRC)."""
-    pos = data.find(SYNC, start)
-    while pos >= 0:
-        if _record_at(data, pos) is not None:
-            return pos
-        pos = data.find(SYNC, pos + 1)
-    return None
-
-
-def flatten_config(config_text: str, sections: Sequence[str]) -> dict[str, str]:
-    """Scalar leaves of the YAML config's given sections as "section.key" -> value (one line each)."""
-    import yaml
-
-    try:
-        doc = yaml.safe_load(config_text)
-    except yaml.YAMLError:
-        return {}
-    out: dict[str, str] = {}
-
-    def walk(prefix: str, node: object) -> None:
-        if isinstance(node, dict):
-            for k, v in node.items():
-                walk(f"{prefix}.{k}", v)
-        elif isinstance(node, (int, float, str, bool)):
-            out[prefix] = " ".join(str(node).split())  # metadata values are single lines
-
-    if isinstance(doc, dict):
-        for s in sections:
-            walk(s, doc.get(s))
-    return out
