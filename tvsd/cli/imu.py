@@ -4,10 +4,9 @@
   tvsctl imu calibrate [--sil] [--seconds S] [--out FILE] [--json]
   tvsctl imu bench [--seconds S] [--json]
 
---sil runs the twins (tvsd.sim.mpu6050) on a simulated clock; the SA sensor's motion comes from the
-SIL drive model spinning at --rps (--motion plant, the default; --effect switches the model's
-effects on) or from SyntheticMotion (--motion synthetic); the PL sensor's from SyntheticMotion:
-faster than real time, unless --realtime. Faults can be injected with --sil-fault.
+This module owns the commands: capture, the SA line's analysis, the samples file, calibration and
+the bench. --sil runs them on the simulated twins, faster than real time unless --realtime; that
+bench and its options (--rps, --motion, --effect, --sil-fault...) are `tvsd.cli.imu_sil`.
 
 Samples file (--out), one file for both sensors, read back by read_samples():
   # tvs-imu: 1
@@ -27,14 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
+from tvsd.cli.imu_sil import add_sil_arguments, sil_bench
 from tvsd.errors import EXIT_OK, DataFileError, DeviceError, UsageError
 from tvsd.hw import imu_calibration as cal
 from tvsd.hw.imu_clock import Clock, ManualClock, MonotonicClock
 from tvsd.hw.imu_reader import ImuReader, SensorReader
 from tvsd.hw.mpu6050 import DLPF_DELAY_S, SA_AXES, ImuSettings, Mpu6050, SMBusLike, angular_acceleration
 from tvsd.hw.mpu6050 import bus_budget as _bus_budget
-from tvsd.sim.imu_motion import ArrayMotion, MotionSource, SyntheticParams, synthetic_pair
-from tvsd.sim.mpu6050 import FAULT_KINDS, Fault, SimI2CBus, SimMpu6050, sil_pair
+from tvsd.sim.mpu6050 import sil_pair
 
 NAMES = ("pl", "sa")
 LINE_MIN_HZ = 2.0  # below: the mounts' leak and drift, not vibration lines
@@ -171,67 +170,6 @@ def read_samples(path: Path) -> dict[str, dict[str, np.ndarray]]:
     return out
 
 
-def _parse_fault(spec: str, settings: ImuSettings) -> Fault:
-    parts = spec.split(":")
-    try:
-        kind, start, end = parts[0], float(parts[1]), float(parts[2])
-        addr = settings.addresses[parts[3]] if len(parts) > 3 else None
-        return Fault(kind, start, end, addr)
-    except (IndexError, ValueError, KeyError) as exc:
-        raise UsageError(
-            f"--sil-fault {spec!r}: expected KIND:START:END[:pl|sa], KIND one of "
-            f"{', '.join(FAULT_KINDS)}, times in s"
-        ) from exc
-
-
-def _sil(
-    args: argparse.Namespace, settings: ImuSettings, at_rest: bool
-) -> tuple[SimI2CBus, Clock, dict[str, SimMpu6050]]:
-    clock: Clock = MonotonicClock() if args.realtime else ManualClock()
-    params = SyntheticParams(
-        rps=0.0 if at_rest else args.rps,
-        imbalance_rad_s2=0.0 if at_rest else args.imbalance,
-        vibration_std_rad_s2=0.0 if at_rest else args.vibration,
-        resonance_hz=args.resonance_hz,
-        resonance_rad_s2=0.0 if at_rest else args.resonance,
-        gamma_rad=np.radians(args.gamma_deg),
-        axis=SA_AXES[settings.sa_axis],
-        seed=args.seed,
-    )
-    motions: dict[str, MotionSource] = dict(synthetic_pair(params))
-    if args.motion == "plant" and not at_rest:
-        motions["sa"] = _plant_motion(args, SA_AXES[settings.sa_axis])
-    bus, devices = sil_pair(settings, clock, motions, bus_hz=None if args.realtime else 400e3, seed=args.seed)
-    bus.faults = [_parse_fault(s, settings) for s in args.sil_fault]
-    if args.sil_who_am_i is not None:
-        for dev in devices.values():
-            dev.who_am_i = dev.regs[0x75] = args.sil_who_am_i
-    return bus, clock, devices
-
-
-def _plant_motion(args: argparse.Namespace, axis: int) -> MotionSource:
-    """The SA sensor's motion from the SIL drive model spinning at --rps (config/tvsd.yaml): the
-    disturbance acceleration about the SA axis the plant computes, with --imbalance (rad/s²) as an
-    imbalance torque J·α unless --effect names the effects. The vibration is the OU reading of
-    eq. (12) with std --vibration (MODEL-NOTES §4): what an IMU measures is band-limited; the
-    literal SDE's acceleration is white to 5 kHz and would alias into the 1 kHz samples."""
-    from tvsd.config import VibrationConfig, load_config
-    from tvsd.model.effects import parse_effects
-    from tvsd.sim import runs
-
-    cfg = load_config()
-    texts = list(args.effect or [])
-    if not texts and args.imbalance > 0:
-        texts.append(f"imbalance:amplitude={args.imbalance * cfg.plant.J:.6g},phase=0")
-    vib = VibrationConfig(model="ou", sigma_v=args.vibration, tau_n_s=cfg.sil_or_default.vibration.tau_n_s)
-    setup = runs.Setup.from_config(cfg, effects=parse_effects(texts), vibration=vib, seed=args.seed)
-    settle = abs(args.rps) / cfg.control.scan_accel_rps2 + 1.0  # spin up, then capture
-    trace = runs.spin(setup, args.rps, settle + args.seconds + 1.0, decim=1)
-    keep = trace.t >= settle - 0.5
-    t = trace.t[keep] - settle
-    return ArrayMotion(t, trace.disturbance[keep], np.radians(args.gamma_deg), trace.omega[keep], axis=axis)
-
-
 def _settings(args: argparse.Namespace) -> ImuSettings:
     """The config's imu: section (config/tvsd.yaml or --config), with --bus overriding the bus."""
     from dataclasses import replace
@@ -247,7 +185,7 @@ def _setup(args: argparse.Namespace, at_rest: bool) -> tuple[ImuSettings, SMBusL
         raise UsageError(f"--seconds {args.seconds:g}: use 0.5 .. 3600")
     settings = _settings(args)
     if args.sil:
-        bus, clock, _ = _sil(args, settings, at_rest)
+        bus, clock, _ = sil_bench(args, settings, at_rest)
         return settings, bus, clock
     return settings, open_bus(settings), MonotonicClock()
 
@@ -411,29 +349,7 @@ def _common(p: argparse.ArgumentParser, seconds: float) -> None:
     p.add_argument(
         "--config", type=Path, help="scanner config with the imu: section (default config/tvsd.yaml)"
     )
-    p.add_argument("--realtime", action="store_true", help="with --sil: run at wall-clock pace")
-    p.add_argument("--rps", type=float, default=25.0, help="--sil: rotation rate, rev/s")
-    p.add_argument("--imbalance", type=float, default=2.0, help="--sil: line at rps, rad/s^2")
-    p.add_argument("--vibration", type=float, default=0.3, help="--sil: OU std, rad/s^2")
-    p.add_argument("--resonance-hz", type=float, default=0.0)
-    p.add_argument("--resonance", type=float, default=0.0, help="--sil: its amplitude, rad/s^2")
-    p.add_argument("--gamma-deg", type=float, default=0.0, help="--sil: rod tilt")
-    p.add_argument(
-        "--motion",
-        choices=("plant", "synthetic"),
-        default="plant",
-        help="--sil: SA motion from the SIL drive model (default) or a synthetic source",
-    )
-    p.add_argument(
-        "--effect",
-        action="append",
-        default=None,
-        metavar="NAME:k=v,...",
-        help="--sil with the plant: effects of the drive model (tvsctl sim spin --help)",
-    )
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--sil-fault", action="append", default=[], metavar="KIND:START:END[:SENSOR]")
-    p.add_argument("--sil-who-am-i", type=lambda s: int(s, 0), default=None)
+    add_sil_arguments(p)
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
