@@ -60,6 +60,8 @@ def daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path, Path]]
     try:
         wait_for(lambda: sock.exists() or proc.poll() is not None, START_S, "the daemon's socket")
         assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+        # the socket answers from the start; the devices come up behind it ("starting")
+        wait_for(lambda: status(sock)["state"] != "starting", START_S, "the devices to come up")
         yield proc, sock, data
     finally:
         if proc.poll() is None:

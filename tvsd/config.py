@@ -182,8 +182,9 @@ class McuConfig:
     state_rate_hz: float = option(
         2500.0, doc="state frames per second: the ATmega328P carries 2.5 kHz", unit="Hz", ge=100, le=10000
     )
+    encoder_counts_per_rev: int = option(8192, doc="encoder counts per shaft revolution (×4)", ge=4)
     watchdog_ms: int = option(
-        20, doc="firmware fail-safe: no heartbeat this long → PWM and laser off", unit="ms", ge=5, le=1000
+        50, doc="firmware fail-safe: no heartbeat this long → PWM and laser off", unit="ms", ge=5, le=1000
     )
     link_timeout_ms: float = option(
         40.0, doc="no state frame this long → the control thread holds PWM 0", unit="ms", gt=0, le=50

@@ -4,7 +4,10 @@ The kernel (`control_loop`) never returns to Python while it runs: it sleeps wit
 `clock_nanosleep(TIMER_ABSTIME)` (tvsd.control.latency.wait_tick), evaluates the robust law and
 writes the command, and exchanges everything with the I/O side through preallocated numpy arrays:
 
-- `ints` (int64): the timing words of tvsd.control.latency, then K_FAULT, K_STREAK_LIMIT, K_BUSY_NS.
+- `ints` (int64): the timing words of tvsd.control.latency, then K_FAULT (0, or why the loop holds
+  its safe state: FAULT_OVERRUN, FAULT_STALE), K_STREAK_LIMIT, K_BUSY_NS, K_MEAS_NS (CLOCK_MONOTONIC
+  of the latest measurement the I/O side wrote), K_STALE_NS (0: no check), K_FAULT_NS (when the
+  fault latched).
 - `vals` (float64): inputs V_MODE … V_OMEGA (written by the I/O side), outputs V_U … V_DT.
 - `hist`: the lateness histogram; `rec`: a ring of the last ticks (what the law saw and did),
   indexed by tick number, which the asyncio side reads in batches.
@@ -14,7 +17,12 @@ tick (100 µs), which is harmless for gain sets that each satisfy the conditions
 
 The law uses the measured time step: references advance by the real elapsed time, so a late tick
 degrades gracefully. `streak_limit` consecutive ticks that wake more than a period late latch the
-safe state (K_FAULT = 1, command 0) until the I/O side clears K_FAULT.
+safe state (K_FAULT = FAULT_OVERRUN, command 0) until the I/O side clears K_FAULT.
+
+Hardware mode (and the daemon's SIL, where the plant sits behind the MCU link): the I/O side writes
+each encoder measurement with its arrival time. A measurement older than K_STALE_NS while the
+drive is commanded latches FAULT_STALE: the command is 0 from the first tick past the limit,
+whatever the event loop is doing (the MCU link's own loss report comes later, from asyncio).
 
 SIL: the plant kernel (tvsd.model.plant.run, open loop) is stepped inside the same loop by the
 real elapsed time with the command held since the previous tick, so the simulated scanner runs in
@@ -42,8 +50,9 @@ from tvsd.model import plant as K
 from tvsd.sim.runs import Setup
 
 # Runner words after the timing words of tvsd.control.latency.
-K_FAULT, K_STREAK_LIMIT, K_BUSY_NS = L.N_TIMING, L.N_TIMING + 1, L.N_TIMING + 2
-N_INTS = L.N_TIMING + 3
+K_FAULT, K_STREAK_LIMIT, K_BUSY_NS, K_MEAS_NS, K_STALE_NS, K_FAULT_NS = range(L.N_TIMING, L.N_TIMING + 6)
+N_INTS = L.N_TIMING + 6
+FAULT_NONE, FAULT_OVERRUN, FAULT_STALE = 0, 1, 2
 
 # vals: inputs (I/O side writes) then outputs (kernel writes).
 (V_MODE, V_REF, V_GP, V_GD, V_GR, V_G0, V_UMAX, V_ACCEL, V_MAXLAG, V_FF, V_PHI, V_OMEGA) = range(12)
@@ -120,8 +129,13 @@ def control_loop(
         mode = int(vals[V_MODE])
         umax = vals[V_UMAX]
         u_ff = 0.0
-        if ints[L.K_STREAK] >= ints[K_STREAK_LIMIT]:
-            ints[K_FAULT] = 1
+        if ints[K_FAULT] == FAULT_NONE:
+            if ints[L.K_STREAK] >= ints[K_STREAK_LIMIT]:
+                ints[K_FAULT] = FAULT_OVERRUN
+                ints[K_FAULT_NS] = wake
+            elif mode != MODE_IDLE and ints[K_STALE_NS] > 0 and wake - ints[K_MEAS_NS] > ints[K_STALE_NS]:
+                ints[K_FAULT] = FAULT_STALE
+                ints[K_FAULT_NS] = wake
         if ints[K_FAULT] != 0 or mode == MODE_IDLE:
             u = 0.0
             phi_ref = phi  # a restart begins where the shaft is, not where it was
@@ -269,22 +283,41 @@ class Runner:
     def idle(self) -> None:
         self.vals[V_MODE] = MODE_IDLE
 
-    def measured(self, phi: float, omega: float) -> None:
-        """Hardware mode: the I/O side writes the latest encoder angle and speed."""
+    def measured(self, phi: float, omega: float, t_ns: int | None = None) -> None:
+        """Hardware mode: the I/O side writes the latest encoder angle and speed, and when it
+        arrived (CLOCK_MONOTONIC ns, default now); the time is written last."""
         self.vals[V_PHI] = phi
         self.vals[V_OMEGA] = omega
+        self.ints[K_MEAS_NS] = time.monotonic_ns() if t_ns is None else t_ns
+
+    def stale_after(self, seconds: float) -> None:
+        """Hold the safe state when the newest measurement is older than this (0: never)."""
+        self.ints[K_STALE_NS] = round(seconds * L.NS)
 
     @property
     def fault(self) -> bool:
         return bool(self.ints[K_FAULT])
 
+    @property
+    def fault_code(self) -> int:
+        return int(self.ints[K_FAULT])
+
+    @property
+    def fault_after_measurement_s(self) -> float:
+        """How long after the newest measurement the fault latched (the stale check's latency)."""
+        return (int(self.ints[K_FAULT_NS]) - int(self.ints[K_MEAS_NS])) / L.NS
+
     def clear_fault(self) -> None:
         self.ints[L.K_STREAK] = 0
-        self.ints[K_FAULT] = 0
+        self.ints[K_FAULT] = FAULT_NONE
 
     @property
     def command(self) -> float:
         return float(self.vals[V_U])
+
+    @property
+    def alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
 
     @property
     def ticks(self) -> int:

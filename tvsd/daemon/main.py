@@ -3,10 +3,11 @@
     tvsd [--config FILE] [--socket PATH] [--data-dir DIR] [--sil] [--demo] [--status-lines]
     tvsd --check [--config FILE]
 
-This build runs on the SIL plant (`--sil`): the hardware backends (MPU6050 reader, MCU link) exist
-(tvsd/hw) and are wired into the daemon next (issue 6). `--demo` spins to 25 rev/s and scans, as
-`make run` shows; `--status-lines` prints one status line per second (foreground use).
-SIGTERM and SIGINT stop it in order (tvsd.daemon.app).
+Each device runs on the backend the config's `devices:` section names (hardware or sil);
+`--sil` makes every device simulated (the drive model behind a virtual MCU on a pty, MPU6050
+twins behind the smbus2 calls). `--demo` spins to 25 rev/s and scans, as `make run` shows;
+`--status-lines` prints one status line per second (foreground use). SIGTERM and SIGINT stop it
+in order (tvsd.daemon.app).
 """
 
 from __future__ import annotations
@@ -68,13 +69,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.check:
         print(f"config ok: plant '{cfg.plant.name}', loop {cfg.control.rate_hz:g} Hz")
         return EXIT_OK
-    if not args.sil:
-        print(
-            "tvsd: this build drives the simulated plant only; the hardware backends (tvsd/hw) are "
-            "wired into the daemon next (issue 6): run `tvsd --sil`",
-            file=sys.stderr,
-        )
-        return EXIT_USAGE
+    if args.sil:
+        from dataclasses import replace
+
+        cfg = replace(cfg, devices=replace(cfg.devices, mcu="sil", imu="sil"))
     config_path = args.config or config_dir() / "tvsd.yaml"
     try:
         args.data_dir.mkdir(parents=True, exist_ok=True)
@@ -116,11 +114,12 @@ async def _serve(args: argparse.Namespace, cfg: Config, config_text: str) -> int
 
 
 async def _demo(daemon: Daemon) -> None:
-    await asyncio.sleep(0.5)
-    await daemon.api_speed(DEMO_RPS)
+    while daemon.state == "starting":
+        await asyncio.sleep(0.1)
+    await daemon.api.api_speed(DEMO_RPS)
     while abs(daemon.measured_rps - DEMO_RPS) > 0.5:
         await asyncio.sleep(0.2)
-    await daemon.api_scan_start()
+    await daemon.api.api_scan_start()
 
 
 if __name__ == "__main__":

@@ -149,6 +149,7 @@ class VirtualMcu:
         self._slice_ticks = max(1, round(_UART_SLICE_S * self.clock_hz))
         self._stop = threading.Event()
         self._closed = False
+        self.cable_cut = False  # fault injection: both directions lost, the core runs on
         self._thread = threading.Thread(target=self._pump, name="virtual-mcu", daemon=True)
         self._thread.start()
 
@@ -287,6 +288,12 @@ class VirtualMcu:
                 # heartbeat_ack's mcu_ticks matches the host's clock to the pump's latency.
                 if self.clock == "wall":
                     self._advance_locked(self._ticks(self._wall_s()))
+                if self.cable_cut:  # a cut cable: what the host sends never arrives, nor ours
+                    data = b""
+                    self._drain_locked()
+                    while self._backlog:
+                        self._backlog.clear()
+                        self._drain_locked()
                 if data:
                     raw = (ctypes.c_uint8 * len(data)).from_buffer_copy(data)
                     self._lib.vmcu_rx_bytes(raw, len(data))

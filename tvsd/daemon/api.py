@@ -1,0 +1,203 @@
+"""The daemon's JSON-RPC methods: check the request, act through the daemon, say what happened.
+
+Each refusal is an RpcError with what was asked, why not, and what to do; the daemon stays up.
+Methods (DESIGN.md, "Daemon API"): status, speed, scan_start, scan_stop, aim, aim_xyz, gains_get,
+gains_set, imu_calibrate, record_start, record_stop, record_window, faults_list, faults_clear,
+inject_fault (SIL devices only), shutdown. The point stream and status are subscriptions
+(tvsd/daemon/rpc.py: `subscribe`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from dataclasses import asdict
+from typing import TYPE_CHECKING, Any
+
+from tvsd.config import Gains
+from tvsd.control import runner as RN
+from tvsd.control.conditions import check_gains, warnings
+from tvsd.daemon.rpc import STATE_ERROR, RpcError
+from tvsd.errors import TvsdError, UsageError
+from tvsd.scan import geometry
+
+if TYPE_CHECKING:
+    from tvsd.daemon.app import Daemon
+
+INVALID_PARAMS = -32602
+DEVICE_ERROR = -32001
+MAX_RPS = 60.0
+MAX_WINDOW_S = 6.0  # the control thread's ring holds 65536 ticks = 6.5 s
+
+
+def _rpc_error(exc: TvsdError) -> RpcError:
+    return RpcError(INVALID_PARAMS if isinstance(exc, UsageError) else DEVICE_ERROR, str(exc))
+
+
+class Api:
+    def __init__(self, daemon: Daemon) -> None:
+        self.d = daemon
+
+    def methods(self) -> dict[str, Any]:
+        return {
+            name.removeprefix("api_"): getattr(self, name) for name in dir(self) if name.startswith("api_")
+        }
+
+    def _refuse_in_fault(self) -> None:
+        if self.d.state == "fault":
+            raise RpcError(
+                STATE_ERROR,
+                "the drive is in its safe state after a fault; "
+                "clear it with faults_clear (tvsctl faults --clear) first",
+            )
+
+    async def api_status(self) -> dict[str, Any]:
+        return self.d.status_dict()
+
+    async def api_speed(self, rps: float) -> dict[str, Any]:
+        self._refuse_in_fault()
+        if not math.isfinite(rps) or abs(rps) > MAX_RPS:
+            raise RpcError(
+                INVALID_PARAMS,
+                f"rps {rps:g} is outside ±{MAX_RPS:g} rev/s (the drive holds 25 at 5.9 V of 12)",
+            )
+        self.d.target_rps = rps
+        self.d.runner.scan(rps)
+        if self.d.state == "idle" and rps != 0:
+            self.d.set_state("spinning")
+        return {"rps_setpoint": rps}
+
+    async def api_scan_start(self) -> dict[str, Any]:
+        self._refuse_in_fault()
+        if abs(self.d.measured_rps) < 1.0:
+            raise RpcError(STATE_ERROR, "the aperture is not spinning: set a speed first (tvsctl speed 25)")
+        try:
+            self.d.drive.laser(True)
+        except TvsdError as exc:
+            raise _rpc_error(exc) from None
+        self.d.start_stream()
+        self.d.set_state("scanning")
+        return {"state": self.d.state}
+
+    async def api_scan_stop(self) -> dict[str, Any]:
+        if self.d.state == "scanning":
+            self.d.set_state("spinning")
+        self.d.stream = None
+        try:
+            self.d.drive.laser(False)
+        except TvsdError as exc:
+            raise _rpc_error(exc) from None
+        return {"state": self.d.state}
+
+    async def api_aim(self, phi_deg: float, gamma_deg: float) -> dict[str, Any]:
+        s = self.d.cfg.scan
+        if not (math.isfinite(phi_deg) and math.isfinite(gamma_deg)) or not (
+            s.phi_min_deg <= phi_deg <= s.phi_max_deg and abs(gamma_deg) <= s.gamma_max_deg
+        ):
+            raise RpcError(
+                INVALID_PARAMS,
+                f"φ = {phi_deg:g}°, γ = {gamma_deg:g}° is outside the axes: φ in "
+                f"[{s.phi_min_deg:g}, {s.phi_max_deg:g}]°, |γ| ≤ {s.gamma_max_deg:g}°",
+            )
+        try:
+            self.d.drive.aim(math.radians(phi_deg), math.radians(gamma_deg))
+        except TvsdError as exc:
+            raise _rpc_error(exc) from None
+        self.d.aim_deg = (phi_deg, gamma_deg)
+        if self.d.state == "scanning":
+            self.d.start_stream()  # the running scan's points at the new angles
+        return {"phi_deg": phi_deg, "gamma_deg": gamma_deg}
+
+    async def api_aim_xyz(self, x: float, y: float, z: float) -> dict[str, Any]:
+        try:
+            a = geometry.aim(x, y, z, self.d.cfg.scan)
+        except UsageError as exc:
+            raise RpcError(INVALID_PARAMS, str(exc)) from None
+        return await self.api_aim(math.degrees(a.phi), math.degrees(a.gamma))
+
+    async def api_gains_get(self) -> dict[str, Any]:
+        g = self.d.runner.vals[RN.V_GP : RN.V_G0 + 1]
+        return {"Gp": float(g[0]), "Gd": float(g[1]), "Gr": float(g[2]), "G0": float(g[3])}
+
+    async def api_gains_set(self, Gp: float, Gd: float, Gr: float, G0: float) -> dict[str, Any]:
+        if not all(math.isfinite(v) for v in (Gp, Gd, Gr, G0)) or min(Gp, Gd, Gr) < 0 or G0 <= 0:
+            raise RpcError(INVALID_PARAMS, "gains must be finite, Gp, Gd, Gr ≥ 0 and G0 > 0")
+        gains = Gains(Gp=Gp, Gd=Gd, Gr=Gr, G0=G0)
+        conds = check_gains(gains, self.d.cfg.plant, self.d.cfg.control.disturbance_bound_rad_s2)
+        self.d.runner.vals[RN.V_GP : RN.V_G0 + 1] = gains.as_tuple()
+        self.d.mark("gains", **asdict(gains))
+        return {"gains": {"Gp": Gp, "Gd": Gd, "Gr": Gr, "G0": G0}, "warnings": warnings(conds)}
+
+    async def api_imu_calibrate(self, seconds: float = 5.0) -> dict[str, Any]:
+        if self.d.imu is None:
+            raise RpcError(
+                STATE_ERROR, "no IMU is running (devices.imu is off or it failed to start: see faults)"
+            )
+        if not 0.5 <= seconds <= 60:
+            raise RpcError(INVALID_PARAMS, f"seconds {seconds:g}: use 0.5 .. 60")
+        if abs(self.d.measured_rps) > 0.05:
+            raise RpcError(
+                STATE_ERROR, "the aperture is turning: stop it (tvsctl speed 0) to calibrate at rest"
+            )
+        try:
+            result: dict[str, Any] = await self.d.imu.calibrate(seconds)
+        except TvsdError as exc:
+            raise _rpc_error(exc) from None
+        self.d.mark("imu_calibrated", file=str(result.get("file")))
+        return result
+
+    async def api_record_start(self) -> dict[str, Any]:
+        if self.d.recording is not None:
+            raise RpcError(STATE_ERROR, f"already recording into {self.d.recording.path}")
+        path = self.d.data_dir / time.strftime("rec-%Y%m%d-%H%M%S")
+        try:
+            self.d.open_recording(path)
+        except OSError as exc:
+            raise RpcError(DEVICE_ERROR, f"cannot record into {path}: {exc}; check --data-dir") from None
+        return {"recording": str(path)}
+
+    async def api_record_stop(self) -> dict[str, Any]:
+        path = self.d.recording.path if self.d.recording is not None else None
+        await self.d.close_recording()
+        return {"recorded": str(path) if path else None}
+
+    async def api_record_window(self, seconds: float = 1.0) -> dict[str, Any]:
+        if self.d.recording is None:
+            raise RpcError(STATE_ERROR, "not recording: start a recording first (tvsctl record start)")
+        if not 0 < seconds <= MAX_WINDOW_S:
+            raise RpcError(
+                INVALID_PARAMS, f"seconds {seconds:g}: the control thread keeps 0 .. {MAX_WINDOW_S:g} s"
+            )
+        ticks = self.d.full_window(seconds, "request")
+        return {"ticks": ticks, "recording": str(self.d.recording.path)}
+
+    async def api_faults_list(self) -> list[dict[str, Any]]:
+        return [asdict(f) for f in self.d.faults]
+
+    async def api_faults_clear(self) -> dict[str, Any]:
+        self.d.faults.clear()
+        self.d.runner.clear_fault()
+        if self.d.state == "fault":
+            self.d.runner.idle()
+            self.d.target_rps = 0.0
+            self.d.set_state("idle")
+        return {"state": self.d.state}
+
+    async def api_inject_fault(self, device: str, fault: str) -> dict[str, Any]:
+        """SIL only: `mcu` link_loss / link_restore, `imu` loss / restore."""
+        try:
+            if device == "mcu":
+                return self.d.drive.inject(fault)
+            if device == "imu":
+                if self.d.imu is None:
+                    raise UsageError("no IMU is running")
+                self.d.imu.inject(fault)
+                return {"device": device, "fault": fault, "t_mono": time.monotonic()}
+        except TvsdError as exc:
+            raise _rpc_error(exc) from None
+        raise RpcError(INVALID_PARAMS, f"device {device!r}: use mcu or imu")
+
+    async def api_shutdown(self) -> dict[str, Any]:
+        asyncio.get_running_loop().call_later(0.05, self.d.request_stop)  # reply first
+        return {"state": "stopping"}

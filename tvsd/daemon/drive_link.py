@@ -1,0 +1,228 @@
+"""The drive as the daemon sees it: the MCU link, on hardware or on the SIL plant.
+
+Both backends speak the same bytes through the same McuLink (tvsd/hw/mcu/link.py): `hardware`
+opens the configured serial port; `sil` starts the drive model behind a virtual MCU on a pty
+(tvsd/sim/mcu_plant.py, paced at real time) and opens that pty. The daemon cannot tell them apart
+but for `inject` (SIL fault injection) and where the SIL scene puts the laser spot.
+
+Every state frame (cfg.mcu.state_rate_hz) hands the control thread the encoder angle, a speed over
+the last SPEED_WINDOW_S of frames, and the frame's arrival time. 2 ms: one frame apart, the
+8192-count encoder would quantise 25 rev/s to 1.2 % (2 ms: 0.24 %, for 1 ms of delay, nothing
+against the drive's 2.4 s time constant); and 2 ms is a whole number of both the 0.4 ms frames
+and the SIL plant's 1 ms encoder updates, so SIL speeds carry no beat between the two. Then it
+sends the control thread's latest command as the PWM duty. So the exchange with the MCU runs at
+the state rate (2.5 kHz on the ATmega328P), one control tick (0.1 ms) behind at most, and the
+10 kHz kernel never waits for it.
+
+Safety, in three layers: the control thread holds PWM 0 once the newest state frame is older than
+cfg.mcu.link_timeout_ms (40 ms: tvsd.control.runner, FAULT_STALE); the link reports the loss
+after 50 ms without any frame (on_link(False)); the firmware cuts PWM and laser watchdog_ms after
+the last heartbeat (heartbeats go every watchdog_ms / 4).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from tvsd.config import Config
+from tvsd.control import runner as RN
+from tvsd.control.runner import Runner
+from tvsd.errors import ConfigError, DeviceError, UsageError
+from tvsd.hw.mcu.link import FaultEvent, LinkSettings, McuLink, PulseEvent, StateSample
+from tvsd.hw.mcu.steppers import Steppers
+from tvsd.scan import geometry
+
+FIRMWARE_TICK_HZ = 10_000  # the firmware's control tick (firmware/PROTOCOL.md: state_div counts these)
+SPEED_WINDOW_S = 2e-3
+SIL_TARGET_RANGE_M = 2.0  # the SIL scene: a surface 2 m from the PL (tvsd/sim/scene.py)
+HOME_TIMEOUT_S = 30.0
+SIL_FAULTS = ("link_loss", "link_restore")
+
+
+def spot_beta(phi: float, gamma: float, range_m: float, baseline_m: float) -> float:
+    """β of the laser spot at φ, γ (rad) on a surface `range_m` from the PL (the SIL scene)."""
+    x = range_m * math.sin(phi)
+    y = 0.5 * baseline_m - range_m * math.cos(phi)
+    z = range_m * math.cos(phi) * math.tan(gamma)
+    return float(geometry.inverse(x, y, z, baseline_m)[1])
+
+
+class DriveLink:
+    """Encoder in, PWM out, pulses and MCU faults up. Start with `await start()`."""
+
+    def __init__(
+        self,
+        cfg: Config,
+        runner: Runner,
+        backend: str,
+        *,
+        on_pulse: Callable[[PulseEvent], None],
+        on_link: Callable[[bool], None],
+        on_fault: Callable[[FaultEvent], None],
+    ) -> None:
+        if backend not in ("hardware", "sil"):
+            raise ConfigError(f"devices.mcu: {backend!r} is not a backend; use hardware or sil")
+        self.cfg, self.runner, self.backend = cfg, runner, backend
+        self.on_pulse, self.on_link, self.on_fault = on_pulse, on_link, on_fault
+        m = cfg.mcu
+        if backend == "sil":
+            sil_counts = cfg.sil_or_default.measurement.encoder_counts_per_rev
+            if sil_counts != m.encoder_counts_per_rev:
+                raise ConfigError(
+                    f"mcu.encoder_counts_per_rev is {m.encoder_counts_per_rev} but the SIL profile's "
+                    f"encoder has {sil_counts}: make them equal"
+                )
+        self.rad_per_count = 2.0 * math.pi / m.encoder_counts_per_rev
+        self.state_div = max(1, min(40, round(FIRMWARE_TICK_HZ / m.state_rate_hz)))
+        self.duty_per_volt = 1.0 / cfg.drive.u_max_v
+        n = max(2, round(SPEED_WINDOW_S * FIRMWARE_TICK_HZ / self.state_div) + 1)
+        self._ticks = np.zeros(n, dtype=np.int64)  # ring of the last frames: MCU ticks, angle
+        self._phi = np.zeros(n)
+        self._frames = 0
+        self.clock_hz = 16_000_000
+        self.plant: Any = None  # tvsd.sim.mcu_plant.McuPlant in SIL
+        self.link: McuLink | None = None
+        self.steppers: Steppers | None = None
+        self.last_state_host = math.nan
+
+    # --- life cycle -----------------------------------------------------------------------------
+    async def start(self, phi: float, gamma: float) -> None:
+        """Open the link (SIL: start the plant first), identify, configure, home the axes."""
+        m = self.cfg.mcu
+        port = m.port
+        if self.backend == "sil":
+            from tvsd.sim.mcu_plant import McuPlant
+
+            self.plant = McuPlant(self.cfg, speed=1.0, record=False)
+            self.plant.beta = spot_beta(phi, gamma, SIL_TARGET_RANGE_M, self.cfg.geometry.baseline_m)
+            for index in (0, 1):
+                self.plant.mcu.set_limit(index, 0)  # the home switches, at step 0
+            self.plant.step()  # loads the plant kernel here, not as a GIL stall in its thread
+            self.plant.start()
+            port = self.plant.mcu.port
+        settings = LinkSettings(
+            port=port, baud=m.baud, heartbeat_period_s=m.watchdog_ms / 4e3, link_timeout_s=0.05
+        )
+        link = McuLink(
+            settings,
+            on_state=self._on_state,
+            on_pulse=self.on_pulse,
+            on_fault=self.on_fault,
+            on_link=self.on_link,
+            on_stepper=self._on_stepper,
+            on_refused=self._on_refused,
+        )
+        self.link = link  # state frames may come during the handshake
+        try:
+            await link.__aenter__()
+        except BaseException:
+            self.link = None
+            self._close_plant()
+            raise
+        assert link.identity is not None
+        self.clock_hz = link.identity.clock_hz
+        link.send_config(watchdog_ms=m.watchdog_ms, state_div=self.state_div, max_on_ms=0)
+        self.runner.stale_after(m.link_timeout_ms * 1e-3)
+        self.steppers = Steppers(link)
+        for axis in ("phi", "gamma"):
+            self.steppers.home(axis)
+
+    async def close(self) -> None:
+        """PWM 0 and laser off on the wire (the firmware's watchdog would do it too), then close."""
+        if self.link is not None:
+            self.link.send_pwm(0.0)
+            self.link.send_laser(False)
+            self.link.flush()
+            await self.link.close()
+            self.link = None
+        self._close_plant()
+
+    def _close_plant(self) -> None:
+        if self.plant is not None:
+            self.plant.close()
+            self.plant = None
+
+    # --- the exchange (event-loop thread) --------------------------------------------------------
+    def _on_state(self, s: StateSample) -> None:
+        i = self._frames % len(self._ticks)
+        phi = s.encoder * self.rad_per_count
+        self._ticks[i], self._phi[i] = s.mcu_ticks, phi
+        self._frames += 1
+        j = (self._frames - min(self._frames, len(self._ticks))) % len(self._ticks)  # oldest kept
+        dt = (s.mcu_ticks - int(self._ticks[j])) / self.clock_hz
+        omega = (phi - float(self._phi[j])) / dt if dt > 0 else float(self.runner.vals[RN.V_OMEGA])
+        self.runner.measured(phi, omega, round(s.host_time * 1e9))
+        self.last_state_host = s.host_time
+        if self.link is not None:
+            self.link.send_pwm(self.runner.command * self.duty_per_volt)
+
+    def _on_stepper(self, st: Any) -> None:
+        if self.steppers is not None:
+            self.steppers.update(st)
+
+    def _on_refused(self, r: Any) -> None:
+        if self.steppers is not None:
+            self.steppers.refused(r.name, r.values, r.reason)
+
+    # --- commands -----------------------------------------------------------------------------
+    def laser(self, on: bool) -> None:
+        if self.link is None or not self.link.send_laser(on):
+            raise DeviceError("cannot switch the laser: the MCU link is closed or its output is full")
+
+    def aim(self, phi: float, gamma: float) -> None:
+        """Move the PL axes (φ, γ in rad); the SIL scene puts the spot where they point."""
+        if self.steppers is None:
+            raise DeviceError("the MCU link is not up: no stepper can move")
+        for axis in ("phi", "gamma"):
+            st = self.steppers.status(axis)
+            if not st.homed:
+                raise UsageError(f"{st.name} is not homed yet (homing runs after start): retry in a few s")
+        self.steppers.move_to("phi", math.degrees(phi))
+        self.steppers.move_to("gamma", math.degrees(gamma))
+        if self.plant is not None:
+            self.plant.beta = spot_beta(phi, gamma, SIL_TARGET_RANGE_M, self.cfg.geometry.baseline_m)
+
+    def inject(self, fault: str) -> dict[str, Any]:
+        """SIL fault injection: `link_loss` cuts the cable both ways, `link_restore` mends it."""
+        if self.plant is None:
+            raise UsageError("fault injection needs the SIL MCU (devices.mcu: sil, or tvsd --sil)")
+        if fault not in SIL_FAULTS:
+            raise UsageError(f"unknown MCU fault {fault!r}: use one of {', '.join(SIL_FAULTS)}")
+        self.plant.mcu.cable_cut = fault == "link_loss"
+        return {"fault": fault, "t_mono": time.monotonic(), "last_state_mono": self.last_state_host}
+
+    # --- status ---------------------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        if self.link is None:
+            return {"source": self.backend, "state": "down"}
+        st = self.link.stats()
+        axes = {}
+        if self.steppers is not None:
+            for axis in ("phi", "gamma"):
+                a = self.steppers.status(axis)
+                axes[axis] = {"deg": a.position_deg, "homed": a.homed, "moving": a.moving}
+        return {
+            "source": self.backend,
+            "state": "ok" if st.link_up else "lost",
+            "port": self.link.settings.port,
+            "state_rate_hz": FIRMWARE_TICK_HZ / self.state_div,
+            "frames_rx": st.frames_rx,
+            "lost_frames": st.lost_frames,
+            "crc_errors": st.crc_errors,
+            "link_losses": st.link_losses,
+            "rtt_p50_us": None if math.isnan(st.rtt_p50_s) else round(st.rtt_p50_s * 1e6, 1),
+            "clock_drift_ppm": None if math.isnan(st.clock_drift_ppm) else round(st.clock_drift_ppm, 2),
+            "steppers": axes,
+        }
+
+    def to_host(self, mcu_ticks: int) -> float:
+        """Host time (time.monotonic) of an MCU tick count, by the link's clock sync."""
+        clock = self.link.clock if self.link is not None else None
+        if clock is None or not clock.ready:
+            return math.nan
+        return float(clock.to_host(mcu_ticks))

@@ -1,0 +1,115 @@
+"""What the daemon records, channel by channel, into one Recorder (tvsd/daemon/recorder.py).
+
+Channels of a daemon recording (numpy structured rows; `tvsctl export REC --csv` writes `loop` as
+DESIGN.md's recording CSV, and `tvsd.daemon.recorder.open_recording(REC).channels[name]` gives
+any of them to numpy/pandas users):
+
+- `loop`       1 kHz bins of the control thread's ticks: t, u, omega, phi (DESIGN.md's CSV).
+- `loop_full`  every 10 kHz tick of a window: on request (`record_window`) and on every fault,
+               the seconds before it (the control thread keeps 6.5 s); columns of RUNNER_COLUMNS.
+- `reference`  1 kHz bins of phi_ref, omega_ref and the feedforward u_ff: the daemon's own
+               reference, which the model doctor can use as an instrument in closed loop.
+- `pulses`     every pulse event from the MCU: host time, MCU ticks, channel (0 zero, 1 optical).
+- `points`     every point published, fields of tvsd.scan.points plus t_mono.
+- `imu`        every IMU sample: sensor (0 PL, 1 SA), sample number, host time, accel, gyro.
+Marks: state changes, faults, windows, with their time.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tvsd.control import runner as RN
+from tvsd.daemon.recorder import LOOP_CHANNEL, LOOP_FIELDS, Recorder
+from tvsd.scan.points import FIELDS as POINT_FIELDS
+
+RECORD_PERIOD_S = 1e-3  # 10 kHz ticks → a 1 kHz recording (DESIGN.md's sample_rate_hz)
+RUNNER_COLUMNS = ("t", "dt", "phi", "omega", "phi_ref", "omega_ref", "u_ff", "u", "late_us")
+REFERENCE_FIELDS = (("t", "<f8"), ("phi_ref", "<f8"), ("omega_ref", "<f8"), ("u_ff", "<f8"))
+PULSE_FIELDS = (("t_host", "<f8"), ("mcu_ticks", "<i8"), ("channel", "<i2"))
+IMU_FIELDS = (
+    ("sensor", "<u1"), ("k", "<i8"), ("t", "<f8"),
+    ("ax", "<f4"), ("ay", "<f4"), ("az", "<f4"), ("gx", "<f4"), ("gy", "<f4"), ("gz", "<f4"),
+)  # fmt: skip
+IMU_SENSORS = {"pl": 0, "sa": 1}
+
+
+class SessionRecording:
+    """One recording of the running daemon; every method is for the event-loop thread."""
+
+    def __init__(self, path: Path, config_text: str) -> None:
+        self.path = path
+        self.recorder = Recorder(path, config_text)
+        r = self.recorder
+        self.loop = r.channel(LOOP_CHANNEL, list(LOOP_FIELDS))
+        self.reference = r.channel("reference", list(REFERENCE_FIELDS))
+        self.full = r.channel("loop_full", [(c, "<f8") for c in RUNNER_COLUMNS])
+        self.pulses = r.channel("pulses", list(PULSE_FIELDS))
+        point_fields = [(f, "<i8" if f == "flags" else "<f8") for f in POINT_FIELDS]
+        self.points = r.channel("points", [*point_fields, ("t_mono", "<f8")])
+        self.imu = r.channel("imu", list(IMU_FIELDS))
+        self._carry = np.zeros((0, RN.N_REC))  # ticks of the open bin
+
+    @property
+    def error(self) -> BaseException | None:
+        return self.recorder.error
+
+    def loop_ticks(self, rows: np.ndarray) -> None:
+        """Average ticks into RECORD_PERIOD_S bins of their own time stamps: a uniform time grid
+        whatever the wake-up jitter; a stall longer than a bin leaves a gap, which `tvsctl export`
+        reports. The last, unfinished bin waits for the next batch."""
+        rows = np.concatenate([self._carry, rows]) if len(self._carry) else rows
+        if not len(rows):
+            return
+        bins = np.floor(rows[:, RN.R_T] / RECORD_PERIOD_S).astype(np.int64)
+        done = bins < bins[-1]
+        self._carry = rows[~done]
+        if not np.any(done):
+            return
+        rows, bins = rows[done], bins[done]
+        ids, start, count = np.unique(bins, return_index=True, return_counts=True)
+        t = (ids + 1) * RECORD_PERIOD_S
+
+        def mean(col: int) -> np.ndarray:
+            return np.add.reduceat(rows[:, col], start) / count
+
+        last = rows[start + count - 1]
+        self.loop.append({"t": t, "u": mean(RN.R_U), "omega": mean(RN.R_OMEGA), "phi": last[:, RN.R_PHI]})
+        ref = {"phi_ref": last[:, RN.R_PHI_REF], "omega_ref": mean(RN.R_OMEGA_REF), "u_ff": mean(RN.R_UFF)}
+        self.reference.append({"t": t, **ref})
+
+    def window(self, rows: np.ndarray, reason: str) -> None:
+        """A full-rate window of control ticks, marked with why it was taken."""
+        if len(rows):
+            self.recorder.mark("window", reason=reason, t0=float(rows[0, RN.R_T]), ticks=len(rows))
+            arr = np.empty(len(rows), dtype=self.full.dtype)
+            for i, c in enumerate(RUNNER_COLUMNS):
+                arr[c] = rows[:, i]
+            self.full.append(arr)
+
+    def pulse(self, t_host: float, mcu_ticks: int, channel: int) -> None:
+        self.pulses.append({"t_host": t_host, "mcu_ticks": mcu_ticks, "channel": channel})
+
+    def point(self, point: dict[str, Any]) -> None:
+        self.points.append({f: point[f] for f in self.points.dtype.names or ()})
+
+    def imu_batch(
+        self, sensor: str, k: np.ndarray, t: np.ndarray, accel: np.ndarray, gyro: np.ndarray
+    ) -> None:
+        self.imu.append(
+            {
+                "sensor": np.full(len(k), IMU_SENSORS.get(sensor, 255)),
+                "k": k, "t": t,
+                "ax": accel[:, 0], "ay": accel[:, 1], "az": accel[:, 2],
+                "gx": gyro[:, 0], "gy": gyro[:, 1], "gz": gyro[:, 2],
+            }
+        )  # fmt: skip
+
+    def mark(self, event: str, **data: Any) -> None:
+        self.recorder.mark(event, **data)
+
+    def close(self) -> None:
+        self.recorder.close()
