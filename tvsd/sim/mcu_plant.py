@@ -23,6 +23,15 @@ ticks from the truth (the pacing line).
 The plant's state (tvsd.model.plant.state_array) carries its time and delay ring from chunk to
 chunk, so resonance phase and transport delay run on; a `drift` effect runs over each chunk. The
 encoder holds its count between feeds.
+
+History: every chunk also goes into a bounded ring (``history_s``, 10 s of 1 ms chunks: 0.3 MB)
+of (end time, mean disturbance acceleration over the chunk, ω and φ at its end), written by
+:meth:`McuPlant.step` and read from any thread (:meth:`McuPlant.history`, :meth:`McuPlant.at_host`):
+what the SIL IMU twins feel (tvsd.sim.imu_motion.PlantMotion). The disturbance is the kernel's
+O_DIST_MEAN, the mean over the chunk of the acceleration about the SA axis that the IMU measures
+(the vibration Δv with its sign in J·ω̇ = … − J·Δv, plus the effect torques / J): unlike the state's
+S_NOISE (the OU model's current value, 0 under the literal SDE), it exists for every vibration
+model, and a chunk mean is the box-car a 1 kHz sensor would see.
 """
 
 from __future__ import annotations
@@ -38,6 +47,7 @@ from types import TracebackType
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from tvsd.config import Config, VibrationConfig
 from tvsd.model import plant as K
@@ -89,6 +99,28 @@ class Pacing:
         return self.wall0 + (sim_s - self.sim0) / speed
 
 
+@dataclass(frozen=True)
+class PlantHistory:
+    """Chunks of the plant in time order: chunk k covers (t[k] − chunk_s, t[k]]."""
+
+    t: np.ndarray  # sim s, end of each chunk
+    disturbance: np.ndarray  # rad/s², mean acceleration about the SA axis over the chunk
+    omega: np.ndarray  # rad/s at t
+    phi: np.ndarray  # rad at t (unwrapped)
+
+    def at(self, t_sim: ArrayLike) -> PlantHistory:
+        """Values at sim times: the disturbance of the chunk holding each time, ω and φ linear
+        between chunk ends. Times before the first chunk or after the last hold the nearest."""
+        s = np.asarray(t_sim, dtype=np.float64)
+        if self.t.size == 0:
+            zero = np.zeros_like(s)
+            return PlantHistory(s, zero, zero, zero)
+        i = np.clip(np.searchsorted(self.t, s, side="left"), 0, self.t.size - 1)
+        return PlantHistory(
+            s, self.disturbance[i], np.interp(s, self.t, self.omega), np.interp(s, self.t, self.phi)
+        )
+
+
 @dataclass
 class McuPlant:
     """The drive model wired to a virtual MCU (manual clock). Use as a context manager."""
@@ -101,6 +133,7 @@ class McuPlant:
     initial_state: np.ndarray | None = None
     record: bool = True  # keep the (t, angle) of every encoder update, for tests
     library: Path | None = None
+    history_s: float = 10.0  # length of the history ring (sim seconds)
 
     def __post_init__(self) -> None:
         if not self.speed > 0:
@@ -132,6 +165,12 @@ class McuPlant:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
+        # history ring: row 0 end time, 1 disturbance, 2 ω, 3 φ; entry j is chunk j (0: the start)
+        self._hist = np.zeros((4, max(2, round(self.history_s / self.chunk_s))))
+        self._hist_n = 0  # entries written so far
+        self._hist_t = 0.0  # end time of the newest entry
+        self._hist_lock = threading.Lock()
+        self._remember(0.0)
         self._feed(0.0, self.angle)
 
     @property
@@ -177,6 +216,49 @@ class McuPlant:
             self.optical_times.append(t_o)
         self._feed(t1, a1)
         self.t = t1
+        self._remember(float(self._out[0, K.O_DIST_MEAN]))
+
+    # ---- history ring ---------------------------------------------------------------------
+    def _remember(self, disturbance: float) -> None:
+        with self._hist_lock:
+            j = self._hist_n % self._hist.shape[1]
+            t = self._chunks * self.chunk_s
+            self._hist[:, j] = (t, disturbance, self.omega, self.angle)
+            self._hist_n += 1
+            self._hist_t = t  # last: covered_host() never runs ahead of the ring
+
+    def history(self, since_sim: float = -math.inf) -> PlantHistory:
+        """The ring's chunks from the one holding sim time `since_sim` (or the oldest kept) to
+        the newest; a copy, safe to call from any thread while the plant runs."""
+        with self._hist_lock:
+            size, n = self._hist.shape[1], self._hist_n
+            first = max(n - size, 0)
+            if math.isfinite(since_sim):  # entry j ends at j·chunk_s: the one holding since_sim
+                first = min(max(first, math.ceil(since_sim / self.chunk_s - 1e-9)), n - 1)
+            idx = np.arange(first, n) % size
+            data = self._hist[:, idx]
+        return PlantHistory(data[0], data[1], data[2], data[3])
+
+    def host_to_sim(self, t_host: ArrayLike) -> np.ndarray:
+        """Sim times of host (time.monotonic) times on the pacing line (inverse of
+        Pacing.truth_host); before the pacing thread starts, the plant's current time."""
+        t = np.asarray(t_host, dtype=np.float64)
+        p = self.pacing
+        wall0 = p.wall0
+        if math.isnan(wall0):
+            return np.full_like(t, self.t)
+        return p.sim0 + (t - wall0) * self.speed
+
+    def covered_host(self) -> float:
+        """Host time up to which the ring holds the plant (its newest chunk's end on the pacing
+        line: up to a chunk and a wake-up behind the line's present); NaN before pacing starts."""
+        p = self.pacing
+        return p.wall0 + (self._hist_t - p.sim0) / self.speed
+
+    def at_host(self, t_host: ArrayLike) -> PlantHistory:
+        """The plant at host times (PlantHistory.at: held beyond the ring and past the plant)."""
+        s = self.host_to_sim(t_host)
+        return self.history(float(np.min(s)) if s.size else -math.inf).at(s)
 
     def _feed(self, t_s: float, angle: float) -> None:
         self.mcu.set_shaft(angle, t_s)
