@@ -159,3 +159,54 @@ def test_kill_9_during_recording_reads_back(daemon, tmp_path):
     # 3 s recorded at 1 kHz; the recorder loses at most its 0.2 s flush interval and the daemon's
     # 0.1 s drain period: at least 2 s of samples must be there.
     assert len(loop) >= 2000
+
+
+def rpc(sock: Path, method: str, **params: object) -> dict:
+    """One JSON-RPC call over the socket; the reply object (result or error)."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+        s.connect(str(sock))
+        s.settimeout(10)
+        f = s.makefile("rwb")
+        f.write(json.dumps({"jsonrpc": "2.0", "id": 1, "method": method, "params": params}).encode() + b"\n")
+        f.flush()
+        return json.loads(f.readline())
+
+
+def test_mcu_link_loss_holds_pwm_0_within_50_ms_of_the_last_frame(daemon):
+    _, sock, _ = daemon
+    tvsctl(sock, "speed", "15")
+    wait_for(lambda: abs(status(sock)["rps"] - 15) < 0.5, 30, "15 rev/s")
+    assert "result" in rpc(sock, "inject_fault", device="mcu", fault="link_loss")
+    wait_for(lambda: status(sock)["state"] == "fault", 10, "the safe state")
+    s = status(sock)
+    stale = [f for f in s["faults"] if f["cause"].startswith("MCU state frames stopped")]
+    assert len(stale) == 1 and "safe state" in stale[0]["action"]
+    # The control thread checks every 0.1 ms tick against the 40 ms limit: the issue's bound is
+    # 50 ms after the last frame, which leaves 10 ms for a late wake-up of the control thread.
+    assert 40.0 <= stale[0]["safe_after_ms"] <= 50.0
+    wait_for(lambda: any("link lost" in f["cause"] for f in status(sock)["faults"]), 5, "the link's report")
+    assert status(sock)["link"]["state"] == "lost"
+    # Refused while in the safe state; back to work after the cable is mended and faults cleared.
+    assert "safe state" in tvsctl(sock, "speed", "10", check=False).stderr
+    rpc(sock, "inject_fault", device="mcu", fault="link_restore")
+    wait_for(lambda: status(sock)["link"]["state"] == "ok", 10, "the link back")
+    tvsctl(sock, "faults", "--clear")
+    tvsctl(sock, "speed", "10")
+    wait_for(lambda: abs(status(sock)["rps"] - 10) < 0.5, 30, "10 rev/s after the fault")
+
+
+def test_overrun_streak_puts_the_drive_in_its_safe_state(daemon):
+    _, sock, _ = daemon
+    tvsctl(sock, "speed", "5")
+    assert "result" in rpc(sock, "inject_fault", device="control", fault="overrun")
+    wait_for(lambda: status(sock)["state"] == "fault", 10, "the safe state")
+    faults = status(sock)["faults"]
+    assert any("overran" in f["cause"] for f in faults), faults
+
+
+def test_fault_injection_names_what_it_accepts(daemon):
+    _, sock, _ = daemon
+    reply = rpc(sock, "inject_fault", device="mcu", fault="meteor")
+    assert reply["error"]["code"] == -32602 and "link_loss" in reply["error"]["message"]
+    reply = rpc(sock, "inject_fault", device="toaster", fault="loss")
+    assert reply["error"]["code"] == -32602 and "use mcu, imu or control" in reply["error"]["message"]

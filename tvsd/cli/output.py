@@ -48,7 +48,20 @@ def print_table(rows: Sequence[Sequence[Any]], headers: Sequence[str] | None = N
 
 
 def print_pairs(pairs: Mapping[str, Any]) -> None:
-    print_table([(k, v) for k, v in pairs.items()])
+    """Key, value lines; a list (e.g. of faults) as one indented line per item."""
+    width = max((len(k) for k in pairs), default=0)
+    for key, value in pairs.items():
+        if isinstance(value, list) and value:
+            print(key)
+            for item in value:
+                text = (
+                    "  ".join(f"{k}={fmt(v)}" for k, v in item.items())
+                    if isinstance(item, Mapping)
+                    else fmt(item)
+                )
+                print(f"  {text}")
+        else:
+            print(f"{key.ljust(width)}  {fmt(value)}")
 
 
 def warn(message: str) -> None:

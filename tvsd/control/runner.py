@@ -6,8 +6,8 @@ writes the command, and exchanges everything with the I/O side through prealloca
 
 - `ints` (int64): the timing words of tvsd.control.latency, then K_FAULT (0, or why the loop holds
   its safe state: FAULT_OVERRUN, FAULT_STALE), K_STREAK_LIMIT, K_BUSY_NS, K_MEAS_NS (CLOCK_MONOTONIC
-  of the latest measurement the I/O side wrote), K_STALE_NS (0: no check), K_FAULT_NS (when the
-  fault latched).
+  of the latest measurement the I/O side wrote), K_STALE_NS (0: no check), K_FAULT_NS and
+  K_FAULT_MEAS_NS (when the fault latched, and the measurement time it judged).
 - `vals` (float64): inputs V_MODE … V_OMEGA (written by the I/O side), outputs V_U … V_DT.
 - `hist`: the lateness histogram; `rec`: a ring of the last ticks (what the law saw and did),
   indexed by tick number, which the asyncio side reads in batches.
@@ -50,8 +50,10 @@ from tvsd.model import plant as K
 from tvsd.sim.runs import Setup
 
 # Runner words after the timing words of tvsd.control.latency.
-K_FAULT, K_STREAK_LIMIT, K_BUSY_NS, K_MEAS_NS, K_STALE_NS, K_FAULT_NS = range(L.N_TIMING, L.N_TIMING + 6)
-N_INTS = L.N_TIMING + 6
+(K_FAULT, K_STREAK_LIMIT, K_BUSY_NS, K_MEAS_NS, K_STALE_NS, K_FAULT_NS, K_FAULT_MEAS_NS) = range(
+    L.N_TIMING, L.N_TIMING + 7
+)
+N_INTS = L.N_TIMING + 7
 FAULT_NONE, FAULT_OVERRUN, FAULT_STALE = 0, 1, 2
 
 # vals: inputs (I/O side writes) then outputs (kernel writes).
@@ -136,6 +138,7 @@ def control_loop(
             elif mode != MODE_IDLE and ints[K_STALE_NS] > 0 and wake - ints[K_MEAS_NS] > ints[K_STALE_NS]:
                 ints[K_FAULT] = FAULT_STALE
                 ints[K_FAULT_NS] = wake
+                ints[K_FAULT_MEAS_NS] = ints[K_MEAS_NS]
         if ints[K_FAULT] != 0 or mode == MODE_IDLE:
             u = 0.0
             phi_ref = phi  # a restart begins where the shaft is, not where it was
@@ -305,7 +308,7 @@ class Runner:
     @property
     def fault_after_measurement_s(self) -> float:
         """How long after the newest measurement the fault latched (the stale check's latency)."""
-        return (int(self.ints[K_FAULT_NS]) - int(self.ints[K_MEAS_NS])) / L.NS
+        return (int(self.ints[K_FAULT_NS]) - int(self.ints[K_FAULT_MEAS_NS])) / L.NS
 
     def clear_fault(self) -> None:
         self.ints[L.K_STREAK] = 0

@@ -16,6 +16,7 @@ from dataclasses import asdict
 from typing import TYPE_CHECKING, Any
 
 from tvsd.config import Gains
+from tvsd.control import latency as L
 from tvsd.control import runner as RN
 from tvsd.control.conditions import check_gains, warnings
 from tvsd.daemon.rpc import STATE_ERROR, RpcError
@@ -185,8 +186,15 @@ class Api:
         return {"state": self.d.state}
 
     async def api_inject_fault(self, device: str, fault: str) -> dict[str, Any]:
-        """SIL only: `mcu` link_loss / link_restore, `imu` loss / restore."""
+        """Fault injection for tests and demos. SIL devices only: `mcu` link_loss / link_restore,
+        `imu` loss / restore; any backend: `control` overrun (every tick burns 3 periods until
+        the overrun streak latches the safe state)."""
         try:
+            if device == "control":
+                if fault != "overrun":
+                    raise UsageError(f"unknown control fault {fault!r}: use overrun")
+                self.d.runner.ints[RN.K_BUSY_NS] = self.d.runner.ints[L.K_PERIOD_NS] * 3
+                return {"device": device, "fault": fault, "t_mono": time.monotonic()}
             if device == "mcu":
                 return self.d.drive.inject(fault)
             if device == "imu":
@@ -196,7 +204,7 @@ class Api:
                 return {"device": device, "fault": fault, "t_mono": time.monotonic()}
         except TvsdError as exc:
             raise _rpc_error(exc) from None
-        raise RpcError(INVALID_PARAMS, f"device {device!r}: use mcu or imu")
+        raise RpcError(INVALID_PARAMS, f"device {device!r}: use mcu, imu or control")
 
     async def api_shutdown(self) -> dict[str, Any]:
         asyncio.get_running_loop().call_later(0.05, self.d.request_stop)  # reply first

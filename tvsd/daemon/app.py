@@ -65,6 +65,7 @@ class Fault:
     t_unix: float
     cause: str
     action: str
+    safe_after_ms: float | None = None  # a link loss: PWM 0 this long after the last state frame
 
 
 class Daemon:
@@ -94,6 +95,8 @@ class Daemon:
             on_fault=self._on_mcu_fault,
         )
         self.imu: Any = None  # tvsd.daemon.imu_service.ImuService once started
+        if cfg.devices.imu != "off":  # import now: at start-up it would stall the link's heartbeats
+            import tvsd.daemon.imu_service  # noqa: F401
         self.notifier = Notifier()
         self.api = Api(self)
         self.rpc = RpcServer(socket_path, self.api.methods())
@@ -218,11 +221,13 @@ class Daemon:
         code = self.runner.fault_code
         if code and self.state not in ("fault", "stopping"):
             cause, action = FAULT_CAUSES.get(code, (f"control thread fault {code}", "safe state: PWM 0"))
+            after = None
             if code == RN.FAULT_STALE:
-                after = self.runner.fault_after_measurement_s * 1e3
+                after = round(self.runner.fault_after_measurement_s * 1e3, 2)
                 cause += f": none for {self.cfg.mcu.link_timeout_ms:g} ms"
                 action += f" {after:.1f} ms after the last frame"
-            self._enter_fault(cause, action)
+            self.runner.ints[RN.K_BUSY_NS] = 0  # an injected overrun ends with its fault
+            self._enter_fault(cause, action, after)
 
     # --- device events (event-loop thread) ---------------------------------------------------------
     def _on_pulse(self, ev: PulseEvent) -> None:
@@ -262,6 +267,14 @@ class Daemon:
             )
 
     def _on_mcu_fault(self, ev: FaultEvent) -> None:
+        if ev.name == "watchdog_expired":
+            # The firmware has cut PWM and laser; the next heartbeat re-arms it and the PWM sent
+            # with every state frame resumes: listed, not latched (a lost link latches its own).
+            self._fault(
+                f"MCU watchdog expired: no heartbeat for {ev.detail} ms (the host's event loop stalled)",
+                "the firmware cut PWM and laser until the next heartbeat; the drive resumed",
+            )
+            return
         self._fault(f"MCU reports {ev.name} (detail {ev.detail})", "MCU outputs off; host holds PWM 0")
         if self.state not in ("fault", "stopping", "starting"):
             self._enter_fault(f"MCU fault {ev.name}", "safe state: PWM 0")
@@ -285,18 +298,18 @@ class Daemon:
         if self.recording is not None:
             self.recording.mark(event, **data)
 
-    def _fault(self, cause: str, action: str) -> None:
-        self.faults.append(Fault(time.time(), cause, action))
+    def _fault(self, cause: str, action: str, safe_after_ms: float | None = None) -> None:
+        self.faults.append(Fault(time.time(), cause, action, safe_after_ms))
         self.rpc.publish("faults", asdict(self.faults[-1]))
-        self.mark("fault", cause=cause, action=action)
+        self.mark("fault", **asdict(self.faults[-1]))
 
-    def _enter_fault(self, cause: str, action: str) -> None:
+    def _enter_fault(self, cause: str, action: str, safe_after_ms: float | None = None) -> None:
         """Safe state: the control thread commands 0 (and stays there until faults_clear)."""
         self.runner.idle()
         self.target_rps = 0.0
         self.stream = None
         self.set_state("fault")
-        self._fault(cause, action)
+        self._fault(cause, action, safe_after_ms)
         if self.recording is not None:
             self.full_window(FAULT_WINDOW_S, cause)
 
