@@ -21,7 +21,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 # 25 rev/s, scans the simulated scene and prints a status line per second until Ctrl-C.
 # Drive it from another terminal: TVSD_SOCKET=.run/tvsd.sock .venv/bin/tvsctl status
 run: $(STAMP)
-	$(BIN)/tvsd --sil --demo --status-lines --socket .run/tvsd.sock --data-dir .run/data
+	$(BIN)/tvsd --sil --realtime --demo --status-lines --socket .run/tvsd.sock --data-dir .run/data
 
 system-deps:
 	scripts/install-system-deps.sh

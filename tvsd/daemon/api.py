@@ -46,6 +46,8 @@ class Api:
         }
 
     def _refuse_in_fault(self) -> None:
+        if self.d.state == "starting":
+            raise RpcError(STATE_ERROR, "the devices are coming up (MCU link, IMU): retry in a second")
         if self.d.state == "fault":
             raise RpcError(
                 STATE_ERROR,

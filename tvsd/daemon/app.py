@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import sys
 import time
 from collections import deque
 from collections.abc import Callable
@@ -124,6 +125,13 @@ class Daemon:
             # heartbeats start, or the firmware's watchdog sees the pause.
             while self.runner.ints[L.K_RUNNING] == 0 and self.runner.alive:
                 await asyncio.sleep(0.01)
+            rt = self.runner.realtime_report
+            if rt is not None:  # asked for: say plainly what was granted and what was not
+                print(
+                    f"tvsd: control thread SCHED_FIFO {rt.sched_fifo}; affinity {rt.affinity}; "
+                    f"memory lock {rt.mlockall}",
+                    file=sys.stderr,
+                )
             await self.drive.start(*(math.radians(v) for v in self.aim_deg))
             await self._start_optional()
             tasks.append(asyncio.create_task(self._initial_aim()))
@@ -362,6 +370,7 @@ class Daemon:
             "recording": str(self.recording.path) if self.recording is not None else None,
             "aim_deg": {"phi": self.aim_deg[0], "gamma": self.aim_deg[1]},
             "faults": [asdict(f) for f in self.faults],
+            "realtime": asdict(self.runner.realtime_report) if self.runner.realtime_report else None,
             "rpc": self.rpc.stats,
         }
 

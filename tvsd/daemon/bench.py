@@ -7,6 +7,7 @@ host time, CLOCK_MONOTONIC, the same clock on this machine).
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import tempfile
@@ -19,6 +20,7 @@ from tvsd.cli.client import RpcClient
 
 
 def bench_point_latency(points: int = 200, rps: float = 25.0) -> dict[str, float]:
+    """Pulse → point latency on the API, and what the SIL daemon costs while it scans."""
     with tempfile.TemporaryDirectory() as tmp:
         sock = Path(tmp) / "tvsd.sock"
         proc = subprocess.Popen(
@@ -27,6 +29,7 @@ def bench_point_latency(points: int = 200, rps: float = 25.0) -> dict[str, float
                 "-m",
                 "tvsd.daemon.main",
                 "--sil",
+                "--realtime",  # SCHED_FIFO when permitted (root, CAP_SYS_NICE); says so when not
                 "--socket",
                 str(sock),
                 "--data-dir",
@@ -40,10 +43,14 @@ def bench_point_latency(points: int = 200, rps: float = 25.0) -> dict[str, float
             while not sock.exists() and time.monotonic() < deadline:
                 time.sleep(0.1)
             with RpcClient(sock) as ctl:
+                while ctl.call("status")["state"] == "starting":  # type: ignore[index]
+                    time.sleep(0.1)
                 ctl.call("speed", rps=rps)
                 while abs(float(ctl.call("status")["rps"]) - rps) > 0.5:  # type: ignore[index]
                     time.sleep(0.2)
                 ctl.call("scan_start")
+                before = ctl.call("status")["loop"]  # type: ignore[index]
+                cpu0, t0 = _cpu_s(proc.pid), time.monotonic()
                 lat: list[float] = []
                 with RpcClient(sock) as sub:
                     for msg in sub.subscribe("points"):
@@ -51,6 +58,9 @@ def bench_point_latency(points: int = 200, rps: float = 25.0) -> dict[str, float
                             lat.append(time.monotonic() - float(point["t_mono"]))  # type: ignore[index]
                         if len(lat) >= points:
                             break
+                cpu_pct = 100 * (_cpu_s(proc.pid) - cpu0) / (time.monotonic() - t0)
+                after = ctl.call("status")["loop"]  # type: ignore[index]
+                missed = (after["missed_ticks"] - before["missed_ticks"]) / (after["ticks"] - before["ticks"])
                 ctl.call("shutdown")
         finally:
             try:
@@ -64,4 +74,13 @@ def bench_point_latency(points: int = 200, rps: float = 25.0) -> dict[str, float
         "api_point_latency_max_ms": float(ms.max()),
         "api_points": float(len(ms)),
         "api_rps": rps,
+        # the whole SIL process: control thread, link, virtual MCU, plant, IMU twins, asyncio
+        "sil_daemon_cpu_pct_of_one_core": round(cpu_pct, 1),
+        "sil_daemon_missed_tick_fraction": round(missed, 4),
     }
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process (/proc/PID/stat fields 14 and 15)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
