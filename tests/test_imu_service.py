@@ -349,3 +349,29 @@ def test_the_sa_gyro_follows_the_running_plant(tmp_path: Path) -> None:
     assert 0.95 < ratio < 1.03
     assert coherence > 0.98
     assert p_true[band].mean() == pytest.approx(2 * 0.3381**2, rel=0.3)  # white: 2σv² one-sided, ±3.3σ
+
+
+# --- the client command --------------------------------------------------------------------------
+
+
+def test_tvsctl_calibrate_imu_calls_the_daemon(capsys: pytest.CaptureFixture[str]) -> None:
+    import tempfile
+
+    from tvsd.cli import main as cli
+    from tvsd.daemon.rpc import ThreadedRpcServer
+
+    calls: list[float] = []
+
+    async def imu_calibrate(seconds: float = 2.0) -> dict[str, object]:
+        calls.append(seconds)
+        return {"file": "/var/lib/tvsd/imu-calibration.json", "sensors": {"sa": {"samples": 1938}}}
+
+    with tempfile.TemporaryDirectory(prefix="tvs") as tmp:  # sun_path: 107 bytes
+        path = Path(tmp) / "tvsd.sock"
+        with ThreadedRpcServer(path, {"imu_calibrate": imu_calibrate}):
+            assert cli.main(["calibrate-imu", "--seconds", "3", "--json", "--socket", str(path)]) == 0
+            assert json.loads(capsys.readouterr().out)["sensors"]["sa"]["samples"] == 1938
+            assert cli.main(["calibrate-imu", "--socket", str(path)]) == 0
+            assert "sensors.sa.samples" in capsys.readouterr().out  # the table
+            assert cli.main(["calibrate-imu", "--seconds", "-1", "--socket", str(path)]) == 2
+    assert calls == [3.0, 2.0]

@@ -52,6 +52,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--clear", action="store_true", help="clear the faults")
     p = add("points", "print points of the live point stream", _points)
     p.add_argument("--count", type=int, default=10, metavar="N", help="points to print (default 10)")
+    p = add("calibrate-imu", "IMU gyro bias at rest: the daemon saves and applies it", _calibrate_imu)
+    p.add_argument("--seconds", type=float, default=2.0, metavar="S", help="capture at rest (default 2)")
     add("shutdown", "stop the daemon", lambda a, c: c.call("shutdown"))
 
 
@@ -96,6 +98,13 @@ def _gains(args: argparse.Namespace, client: RpcClient) -> object:
     if args.set is None:
         return client.call("gains_get")
     return client.call("gains_set", **parse_gains(args.set))
+
+
+def _calibrate_imu(args: argparse.Namespace, client: RpcClient) -> object:
+    if not 0 < args.seconds <= 60:
+        raise UsageError(f"--seconds {args.seconds:g}: give a duration up to 60 s (the scanner at rest)")
+    client.timeout = max(client.timeout, args.seconds + 10.0)  # the answer comes after the capture
+    return client.call("imu_calibrate", seconds=args.seconds)
 
 
 def _faults(args: argparse.Namespace, client: RpcClient) -> object:

@@ -16,7 +16,18 @@ from collections.abc import Sequence
 from tvsd import __version__
 from tvsd.errors import EXIT_INTERNAL, EXIT_USAGE, TvsdError
 
-_DAEMON_COMMANDS = ("status", "speed", "scan", "aim", "gains", "record", "faults", "points", "shutdown")
+_DAEMON_COMMANDS = (
+    "status",
+    "speed",
+    "scan",
+    "aim",
+    "gains",
+    "record",
+    "faults",
+    "points",
+    "calibrate-imu",
+    "shutdown",
+)
 
 # command name -> module offering register(subparsers) (a module may register several commands).
 # Only the invoked command's module is imported: the others pull in scipy, python-can, numba
