@@ -451,10 +451,10 @@ def test_feed_puts_the_sa_acceleration_on_the_streams_mcu_grid() -> None:
     assert np.allclose([c[0] for c in sink.calls[1:]], ends[:-1], rtol=0, atol=1e-9)
     t, imu, drive = sink.joined()
     alpha, _ = _lines(t)
-    # the Savitzky–Golay derivative is within 0.1 % of jω at 25 Hz; the linear interpolation
-    # to the centres errs by at most (ωh)²/8 = 0.3 % of a 25 Hz line at h ≈ 1 ms: 1 % of the
-    # 3 rad/s² amplitude: 0.013 together (measured 0.0134), 0.03 allowed; the clock's 50 ppm
-    # and the delay are taken out exactly
+    # the Savitzky–Golay derivative is within 0.1 % of jω at 25 Hz and the linear interpolation
+    # to the centres errs by at most (ωh)²/8 = 0.33 % of a 25 Hz line (h ≈ 1 ms): with its
+    # 3 rad/s² amplitude, 0.013 rad/s² together (measured 0.0134); 0.03 allowed. The clock's
+    # 50 ppm and the DLPF delay are taken out exactly.
     assert feed.zero_cells == 0 and imu.size > 1900
     assert np.max(np.abs(imu - alpha)) < 0.03, f"worst {np.max(np.abs(imu - alpha)):.4f} rad/s²"
     assert np.allclose(drive, 12.0)  # 6 V × 2 rad/s² per V, no current lag
