@@ -210,3 +210,21 @@ def test_fault_injection_names_what_it_accepts(daemon):
     assert reply["error"]["code"] == -32602 and "link_loss" in reply["error"]["message"]
     reply = rpc(sock, "inject_fault", device="toaster", fault="loss")
     assert reply["error"]["code"] == -32602 and "use mcu, imu or control" in reply["error"]["message"]
+
+
+def test_imu_loss_flags_points_and_scanning_goes_on(daemon):
+    _, sock, _ = daemon
+    tvsctl(sock, "speed", "20")
+    wait_for(lambda: abs(status(sock)["rps"] - 20) < 0.5, 30, "20 rev/s")
+    tvsctl(sock, "scan", "start")
+    wait_for(lambda: status(sock)["points"]["total"] >= 10, 20, "points")
+    before = status(sock)["points"]
+    assert before["no_imu"] == 0  # IMU ok: compensated points, none flagged
+    assert "result" in rpc(sock, "inject_fault", device="imu", fault="loss")
+    wait_for(lambda: status(sock)["imu"]["state"] in ("lost", "degraded"), 10, "the IMU loss")
+    wait_for(lambda: status(sock)["points"]["no_imu"] >= 10, 20, "flagged points")
+    s = status(sock)
+    assert s["state"] == "scanning" and any(f["cause"].startswith("IMU") for f in s["faults"])
+    # calibration needs the aperture at rest: refused while it turns, with the fix
+    refused = rpc(sock, "imu_calibrate", seconds=1.0)
+    assert refused["error"]["code"] == -32002 and "speed 0" in refused["error"]["message"]

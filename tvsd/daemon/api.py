@@ -86,7 +86,7 @@ class Api:
     async def api_scan_stop(self) -> dict[str, Any]:
         if self.d.state == "scanning":
             self.d.set_state("spinning")
-        self.d.stream = None
+        self.d.stream = self.d.feed = None
         try:
             self.d.drive.laser(False)
         except TvsdError as exc:
@@ -137,8 +137,8 @@ class Api:
             raise RpcError(
                 STATE_ERROR, "no IMU is running (devices.imu is off or it failed to start: see faults)"
             )
-        if not 0.5 <= seconds <= 60:
-            raise RpcError(INVALID_PARAMS, f"seconds {seconds:g}: use 0.5 .. 60")
+        if not 1 <= seconds <= 60:
+            raise RpcError(INVALID_PARAMS, f"seconds {seconds:g}: use 1 .. 60")
         if abs(self.d.measured_rps) > 0.05:
             raise RpcError(
                 STATE_ERROR, "the aperture is turning: stop it (tvsctl speed 0) to calibrate at rest"

@@ -43,11 +43,14 @@ from tvsd.daemon.api import Api
 from tvsd.daemon.can_bridge import CanBridge
 from tvsd.daemon.can_frames import Ack, Command, CommandCode, Reason
 from tvsd.daemon.drive_link import HOME_TIMEOUT_S, DriveLink
+from tvsd.daemon.imu_feed import ImuFeed
 from tvsd.daemon.notify import Notifier
 from tvsd.daemon.rpc import RpcError, RpcServer
 from tvsd.daemon.session_recording import SessionRecording
 from tvsd.errors import TvsdError
 from tvsd.hw.mcu.link import FaultEvent, PulseEvent
+from tvsd.hw.mpu6050 import DLPF_DELAY_S, SA_AXES
+from tvsd.scan.compensation import DriveModel
 from tvsd.scan.points import FLAG_NO_IMU
 from tvsd.scan.pulses import OPTICAL
 from tvsd.scan.stream import PointStream
@@ -55,6 +58,7 @@ from tvsd.sim import runs
 
 DRAIN_S = 0.02  # how often recorded ticks move on
 FAULT_WINDOW_S = 2.0  # full-rate control ticks recorded before each fault
+COMMAND_HISTORY = 5000  # control ticks (0.5 s) the compensation looks back for the command
 FAULT_CAUSES = {
     RN.FAULT_OVERRUN: ("control loop overran its deadline streak", "safe state: PWM 0"),
     RN.FAULT_STALE: ("MCU state frames stopped", "safe state: PWM 0 from the control thread"),
@@ -107,6 +111,7 @@ class Daemon:
         self.faults: list[Fault] = []
         self.recording: SessionRecording | None = None
         self.stream: PointStream | None = None
+        self.feed: ImuFeed | None = None  # the IMU's samples into a compensating stream
         self.aim_deg = (60.0, 0.0)  # φ, γ: DoE B's middle target
         self.points_total = 0
         self.points_no_imu = 0
@@ -243,13 +248,16 @@ class Daemon:
             self.recording.pulse(ev.host_time, ev.mcu_ticks, ev.channel)
         if self.state != "scanning" or self.stream is None:
             return
-        imu_ok = self.imu is not None and self.imu.healthy
-        for point in self.stream.add_pulse(ev.channel, ev.mcu_ticks):
+        self._publish(self.stream.add_pulse(ev.channel, ev.mcu_ticks))
+        if ev.channel == OPTICAL:
+            self._points_window.append((time.monotonic(), self.points_total))
+
+    def _publish(self, points: list[dict[str, Any]]) -> None:
+        for point in points:
             # The optical pulse's host time: a client on this machine gets the latency from
             # pulse to point as time.monotonic() − t_mono on receipt.
             point["t_mono"] = self.drive.to_host(round(float(point["t"]) * self.drive.clock_hz))
-            if not imu_ok:
-                point["flags"] = int(point["flags"]) | FLAG_NO_IMU
+            if int(point["flags"]) & FLAG_NO_IMU:
                 self.points_no_imu += 1
             if math.isfinite(point["t_mono"]):
                 self._latency.append(time.monotonic() - point["t_mono"])
@@ -258,8 +266,6 @@ class Daemon:
             self.can.publish_point(point)
             if self.recording is not None:
                 self.recording.point(point)
-        if ev.channel == OPTICAL:
-            self._points_window.append((time.monotonic(), self.points_total))
 
     def _on_link(self, up: bool) -> None:
         if up:
@@ -291,10 +297,22 @@ class Daemon:
         self.mark("imu_state", state=state, detail=detail)
         if state in ("lost", "degraded"):
             self._fault(f"IMU {state}: {detail}", "scanning continues; points flagged no_imu")
+        if self.state == "scanning" and (self.feed is not None) != (state == "ok"):
+            self.start_stream()  # compensated while the IMU is ok, flagged no_imu while it is not
 
     def _on_imu_batch(self, batch: Any) -> None:
         if self.recording is not None:
             self.recording.imu_batch(batch.sensor, batch.k, batch.t, batch.accel, batch.gyro)
+        if self.feed is not None and self.state == "scanning":
+            self._publish(self.feed.push(batch))
+
+    def _voltage_at(self, t_mcu: np.ndarray) -> np.ndarray:
+        """The command the control thread sent at MCU times (the last COMMAND_HISTORY ticks)."""
+        rows = self.runner.recent(COMMAND_HISTORY)
+        t0 = self.runner.ints[L.K_START_NS] / 1e9  # the loop's start on CLOCK_MONOTONIC
+        host = t0 + rows[:, RN.R_T]
+        mcu = host + (self.drive.to_mcu_s(float(host[-1])) - float(host[-1])) if len(rows) else host
+        return np.interp(t_mcu, mcu, rows[:, RN.R_U]) if len(rows) else np.zeros_like(t_mcu)
 
     # --- state -------------------------------------------------------------------------------------
     def set_state(self, state: str) -> None:
@@ -315,15 +333,36 @@ class Daemon:
         """Safe state: the control thread commands 0 (and stays there until faults_clear)."""
         self.runner.idle()
         self.target_rps = 0.0
-        self.stream = None
+        self.stream = self.feed = None
         self.set_state("fault")
         self._fault(cause, action, safe_after_ms)
         if self.recording is not None:
             self.full_window(FAULT_WINDOW_S, cause)
 
     def start_stream(self) -> None:
+        """A new point stream at the current aim: IMU-compensated while the IMU is ok (ImuFeed
+        hands it the SA acceleration and the drive model's), else from the zero pulses alone
+        (points flagged no_imu). A switch drops the pulses of the revolution in progress."""
         phi, gamma = (math.radians(v) for v in self.aim_deg)
-        self.stream = PointStream(self.cfg.scan, phi, gamma, 1.0 / self.drive.clock_hz, compensate=False)
+        compensate = self.imu is not None and self.imu.healthy
+        p = self.cfg.plant
+        model = DriveModel.from_plant(p.kM, p.ku, p.R, p.J, p.kv + p.sigma2, p.kb, p.L)
+        tick = 1.0 / self.drive.clock_hz
+        self.stream = PointStream(
+            self.cfg.scan, phi, gamma, tick, compensate=compensate, damping=model.damping
+        )
+        self.feed = None
+        if compensate:
+            imu = self.cfg.imu
+            self.feed = ImuFeed(
+                self.stream,
+                self.drive.to_mcu_s,
+                self._voltage_at,
+                model,
+                rate_hz=self.cfg.scan.imu_rate_hz,
+                axis=SA_AXES[imu.sa_axis],
+                delay_s=DLPF_DELAY_S.get(imu.dlpf_cfg, 0.0),
+            )
 
     @property
     def measured_rps(self) -> float:

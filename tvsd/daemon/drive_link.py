@@ -220,6 +220,13 @@ class DriveLink:
             "steppers": axes,
         }
 
+    def to_mcu_s(self, host_s: float) -> float:
+        """MCU time (s) of a host time (time.monotonic), by the link's clock sync; NaN before it."""
+        clock = self.link.clock if self.link is not None else None
+        if clock is None or not clock.ready:
+            return math.nan
+        return clock.to_ticks(host_s) / self.clock_hz
+
     def to_host(self, mcu_ticks: int) -> float:
         """Host time (time.monotonic) of an MCU tick count, by the link's clock sync."""
         clock = self.link.clock if self.link is not None else None

@@ -72,7 +72,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.sil:
         from dataclasses import replace
 
-        cfg = replace(cfg, devices=replace(cfg.devices, mcu="sil", imu="sil"))
+        # the twins' calibration lives with the SIL data: a board's file must not apply to them
+        imu = replace(cfg.imu, calibration_file=str(args.data_dir / "imu-calibration-sil.json"))
+        cfg = replace(cfg, devices=replace(cfg.devices, mcu="sil", imu="sil"), imu=imu)
     config_path = args.config or config_dir() / "tvsd.yaml"
     try:
         args.data_dir.mkdir(parents=True, exist_ok=True)
