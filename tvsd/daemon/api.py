@@ -19,15 +19,13 @@ from tvsd.config import Gains
 from tvsd.control import latency as L
 from tvsd.control import runner as RN
 from tvsd.control.conditions import check_gains, warnings
-from tvsd.daemon.rpc import STATE_ERROR, RpcError
+from tvsd.daemon.rpc import DEVICE_ERROR, INVALID_PARAMS, STATE_ERROR, RpcError
 from tvsd.errors import TvsdError, UsageError
 from tvsd.scan import geometry
 
 if TYPE_CHECKING:
     from tvsd.daemon.app import Daemon
 
-INVALID_PARAMS = -32602
-DEVICE_ERROR = -32001
 MAX_RPS = 60.0
 MAX_WINDOW_S = 6.0  # the control thread's ring holds 65536 ticks = 6.5 s
 
