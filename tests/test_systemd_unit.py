@@ -95,7 +95,9 @@ def test_key_settings():
         assert s.get(key) == value, f"{key}: expected {value}, unit has {s.get(key)}"
     assert set(s["Service.AmbientCapabilities"][0].split()) == {"CAP_SYS_NICE", "CAP_IPC_LOCK"}
     assert int(s["Service.LimitRTPRIO"][0]) >= 50
-    assert set(s["Service.DeviceAllow"]) == {"char-i2c rw", "char-ttyACM rw", "char-ttyUSB rw"}
+    # the I2C buses and the serial ports an MCU can sit on (USB CDC, USB-serial, the Pi's UARTs); nothing else
+    serial = {"char-ttyACM rw", "char-ttyUSB rw", "char-ttyAMA rw", "char-ttyS rw"}
+    assert set(s["Service.DeviceAllow"]) == {"char-i2c rw"} | serial
     for key in ("RestartSec", "ProtectHome", "PrivateTmp", "ProtectKernelTunables", "ProtectControlGroups"):
         assert f"Service.{key}" in s, f"{key}= missing"
 
