@@ -35,7 +35,6 @@ from tvsd.control.runner import Runner
 from tvsd.errors import ConfigError, DeviceError, UsageError
 from tvsd.hw.mcu.link import FaultEvent, LinkSettings, McuLink, PulseEvent, StateSample
 from tvsd.hw.mcu.steppers import Steppers
-from tvsd.scan import geometry
 
 FIRMWARE_TICK_HZ = 10_000  # the firmware's control tick (firmware/PROTOCOL.md: state_div counts these)
 SPEED_WINDOW_S = 2e-3
@@ -44,12 +43,11 @@ HOME_TIMEOUT_S = 30.0
 SIL_FAULTS = ("link_loss", "link_restore")
 
 
-def spot_beta(phi: float, gamma: float, range_m: float, baseline_m: float) -> float:
-    """β of the laser spot at φ, γ (rad) on a surface `range_m` from the PL (the SIL scene)."""
-    x = range_m * math.sin(phi)
-    y = 0.5 * baseline_m - range_m * math.cos(phi)
-    z = range_m * math.cos(phi) * math.tan(gamma)
-    return float(geometry.inverse(x, y, z, baseline_m)[1])
+def spot_beta(cfg: Config, phi: float, gamma: float) -> float:
+    """β of the laser spot at φ, γ (rad) on the SIL scene's surface: the McuPlant's own target."""
+    from tvsd.sim.mcu_plant import Target, target_beta
+
+    return target_beta(cfg, Target(math.degrees(phi), math.degrees(gamma), SIL_TARGET_RANGE_M))
 
 
 class DriveLink:
@@ -99,7 +97,7 @@ class DriveLink:
             from tvsd.sim.mcu_plant import McuPlant
 
             self.plant = McuPlant(self.cfg, speed=1.0, record=False)
-            self.plant.beta = spot_beta(phi, gamma, SIL_TARGET_RANGE_M, self.cfg.geometry.baseline_m)
+            self.plant.beta = spot_beta(self.cfg, phi, gamma)
             for index in (0, 1):
                 self.plant.mcu.set_limit(index, 0)  # the home switches, at step 0
             self.plant.step()  # loads the plant kernel here, not as a GIL stall in its thread
@@ -185,7 +183,7 @@ class DriveLink:
         self.steppers.move_to("phi", math.degrees(phi))
         self.steppers.move_to("gamma", math.degrees(gamma))
         if self.plant is not None:
-            self.plant.beta = spot_beta(phi, gamma, SIL_TARGET_RANGE_M, self.cfg.geometry.baseline_m)
+            self.plant.beta = spot_beta(self.cfg, phi, gamma)
 
     def inject(self, fault: str) -> dict[str, Any]:
         """SIL fault injection: `link_loss` cuts the cable both ways, `link_restore` mends it."""
