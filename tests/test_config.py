@@ -125,6 +125,10 @@ def test_arbitrary_text_never_raises_anything_but_config_error(tmp_path, text):
             "imu.gyro_fs_dps = 300: one of (250, 500, 1000, 2000)",
         ),
         (lambda d: d["imu"].__setitem__("sa_axis", "w"), "imu.sa_axis: expected one of x, y, z"),
+        (
+            lambda d: d["scan"].__setitem__("phi_max_deg", 1.0),
+            "scan.phi_min_deg (10) must be below phi_max_deg (1)",
+        ),
     ],
 )
 def test_specific_errors_name_the_key_and_expectation(tmp_path, edit, needle):

@@ -19,7 +19,7 @@ from typing import Any
 
 import yaml
 
-from tvsd.errors import ConfigError
+from tvsd.errors import ConfigError, UsageError
 
 
 def option(
@@ -127,7 +127,14 @@ def build(cls: type, data: Any, where: Where) -> Any:
                 raise where.error(f"missing required key '{name}' ({f.metadata.get('doc', '')})")
             continue
         values[name] = convert(hints[name], data[name], sub, f.metadata)
-    return cls(**values)
+    try:
+        return cls(**values)
+    except ConfigError:
+        raise
+    except UsageError as exc:
+        # A rule across keys (e.g. phi_min_deg < phi_max_deg), checked by the dataclass itself:
+        # point at the section, since no single key is wrong on its own.
+        raise ConfigError(f"{where.path}:{where.line}: {exc}") from None
 
 
 def _join(prefix: str, key: str) -> str:
