@@ -127,6 +127,26 @@ def test_hardware_mode_uses_the_measured_inputs(setup: Setup) -> None:
     assert np.all(rec[:, RN.R_PHI] == 0.1) and np.all(rec[:, RN.R_OMEGA] == 2.0)
 
 
+def test_a_measurement_with_its_sampling_time_is_carried_forward_at_its_speed(setup: Setup) -> None:
+    """With the MCU's sampling instant, each tick's φ is φ_s + ω·(wake − t_s): exactly, since the
+    recorded t is the wake time on the same clock (capped at EXTRAPOLATE_MAX_NS)."""
+    r = RN.Runner(setup, sil=False)
+    r.position(0.0)
+    r.start()
+    assert _wait(lambda: r.ticks > 5, 10.0)
+    sample_ns = time.monotonic_ns()
+    r.measured(0.1, 2.0, sample_ns=sample_ns)
+    first = r.ticks
+    assert _wait(lambda: r.ticks > first + 50, 10.0)
+    r.stop(5.0)
+    rec = r.recent(40)
+    start_ns = int(r.ints[L.K_START_NS])
+    age = np.clip(start_ns + rec[:, RN.R_T] * 1e9 - sample_ns, 0, RN.EXTRAPOLATE_MAX_NS) / 1e9
+    # R_T is stored in float seconds since the start: ~1e-16 relative, ns exact to ~1e-6 s·ω
+    np.testing.assert_allclose(rec[:, RN.R_PHI], 0.1 + 2.0 * age, rtol=0, atol=1e-9)
+    assert np.all(rec[:, RN.R_OMEGA] == 2.0) and np.all(age > 0)
+
+
 def test_sil_plant_spins_up_in_real_time(setup: Setup) -> None:
     """20 rev/s: the reference ramps at 10 rev/s² (2 s), the plant settles within ~0.5 s more.
 

@@ -7,7 +7,9 @@ writes the command, and exchanges everything with the I/O side through prealloca
 - `ints` (int64): the timing words of tvsd.control.latency, then K_FAULT (0, or why the loop holds
   its safe state: FAULT_OVERRUN, FAULT_STALE), K_STREAK_LIMIT, K_BUSY_NS, K_MEAS_NS (CLOCK_MONOTONIC
   of the latest measurement the I/O side wrote), K_STALE_NS (0: no check), K_FAULT_NS and
-  K_FAULT_MEAS_NS (when the fault latched, and the measurement time it judged).
+  K_FAULT_MEAS_NS (when the fault latched, and the measurement time it judged), K_SAMPLE_NS (when
+  the MCU sampled that measurement; 0: unknown, the angle is used as it is) and K_MEAS_SEQ (the
+  seqlock around φ, ω and that time).
 - `vals` (float64): inputs V_MODE … V_OMEGA (written by the I/O side), outputs V_U … V_DT.
 - `hist`: the lateness histogram; `rec`: a ring of the last ticks (what the law saw and did),
   indexed by tick number, which the asyncio side reads in batches.
@@ -53,7 +55,8 @@ from tvsd.sim.runs import Setup
 (K_FAULT, K_STREAK_LIMIT, K_BUSY_NS, K_MEAS_NS, K_STALE_NS, K_FAULT_NS, K_FAULT_MEAS_NS) = range(
     L.N_TIMING, L.N_TIMING + 7
 )
-N_INTS = L.N_TIMING + 7
+K_SAMPLE_NS, K_MEAS_SEQ = L.N_TIMING + 7, L.N_TIMING + 8
+N_INTS = L.N_TIMING + 9
 FAULT_NONE, FAULT_OVERRUN, FAULT_STALE = 0, 1, 2
 
 # vals: inputs (I/O side writes) then outputs (kernel writes).
@@ -66,6 +69,10 @@ MODE_IDLE, MODE_POSITION, MODE_SCAN = 0, K.MODE_POSITION, K.MODE_SCAN
 R_T, R_DT, R_PHI, R_OMEGA, R_PHI_REF, R_OMEGA_REF, R_UFF, R_U, R_LATE_US = range(9)
 N_REC = 9
 
+# The measured angle is carried forward at the measured speed from its sampling instant to each
+# tick, at most this far: beyond it the link is failing (the stale limit latches at 40 ms) and the
+# angle is held.
+EXTRAPOLATE_MAX_NS = 10_000_000
 MAX_DT_S = 0.05  # a longer stall (suspend, debugger) advances the references by this much only
 MAX_PLANT_STEPS = 1000  # SIL catch-up cap per tick (0.1 s at 10 kHz); beyond it sim time lags
 
@@ -76,6 +83,24 @@ def _busy(ts: np.ndarray, ns: int) -> None:
     end = L.now_ns(ts) + ns
     while L.now_ns(ts) < end:
         pass
+
+
+@njit(cache=True, nogil=True)
+def _read_measurement(
+    ints: np.ndarray, vals: np.ndarray, ts: np.ndarray, held: tuple[float, float, int]
+) -> tuple[float, float, int]:
+    """(φ, ω, sample time) as one consistent set, or `held` (the last one) if the I/O side is
+    writing right now: it writes them between two increments of K_MEAS_SEQ. Never a retry loop:
+    the writer may be preempted mid-write by this very thread (SCHED_FIFO on its CPU), and a
+    spinning reader would then wait for the scheduler to move it (measured: 30–45 ms stalls).
+    The clock call between the reads is opaque to the compiler, so it re-loads the sequence
+    word rather than assuming nobody else writes it."""
+    seq = ints[K_MEAS_SEQ]
+    phi, omega, sample_ns = vals[V_PHI], vals[V_OMEGA], ints[K_SAMPLE_NS]
+    L.now_ns(ts)
+    if seq % 2 == 0 and ints[K_MEAS_SEQ] == seq:
+        return phi, omega, sample_ns
+    return held
 
 
 @njit(cache=True, nogil=True)
@@ -111,6 +136,7 @@ def control_loop(
     J, kv, kM, kb = plant[P.P_J], plant[P.P_KV] + plant[P.P_S2], plant[P.P_KM], plant[P.P_KB]
     R, ku, tc, tsv, v0 = plant[P.P_R], plant[P.P_KU], plant[P.P_TC], plant[P.P_TS], plant[P.P_V0]
     u = 0.0
+    measurement = (vals[V_PHI], vals[V_OMEGA], ints[K_SAMPLE_NS])
     while ints[L.K_STOP] == 0:
         wake, deadline = L.wait_tick(ints, hist, edges, ts, deadline)
         dt = min((wake - prev) / 1e9, MAX_DT_S)
@@ -126,8 +152,14 @@ def control_loop(
             K.run(state, plant, eff, vib, pctrl, plant_dt, n, u_hold, 1 << 30, -1, pout)
             vals[V_PHI] = state[K.S_PHI]
             vals[V_OMEGA] = state[K.S_OMEGA]
-        phi = vals[V_PHI]
-        omega = vals[V_OMEGA]
+        measurement = _read_measurement(ints, vals, ts, measurement)
+        phi, omega, sample_ns = measurement
+        if sample_ns > 0:
+            # The encoder was read at sample_ns, up to a frame period (+ the link) ago: the law
+            # sees the angle now. Held, ε would grow by ω·period between frames (0.063 rad at
+            # 2.5 kHz and 25 rev/s: G0·ε runs over tanh's whole range) and the command would saw.
+            age = min(max(wake - sample_ns, 0), EXTRAPOLATE_MAX_NS)
+            phi += omega * (age / 1e9)
         mode = int(vals[V_MODE])
         umax = vals[V_UMAX]
         u_ff = 0.0
@@ -286,12 +318,20 @@ class Runner:
     def idle(self) -> None:
         self.vals[V_MODE] = MODE_IDLE
 
-    def measured(self, phi: float, omega: float, t_ns: int | None = None) -> None:
-        """Hardware mode: the I/O side writes the latest encoder angle and speed, and when it
-        arrived (CLOCK_MONOTONIC ns, default now); the time is written last."""
+    def measured(
+        self, phi: float, omega: float, t_ns: int | None = None, sample_ns: int | None = None
+    ) -> None:
+        """Hardware mode: the I/O side writes the latest encoder angle and speed, when it
+        arrived (CLOCK_MONOTONIC ns, default now; judged by the stale check) and, if known, when
+        the MCU sampled it (the same clock; the law carries the angle forward from there at the
+        measured speed). The arrival time is written last."""
+        ints = self.ints
+        ints[K_MEAS_SEQ] += 1  # odd: an update is being written (a seqlock; one writer)
         self.vals[V_PHI] = phi
         self.vals[V_OMEGA] = omega
-        self.ints[K_MEAS_NS] = time.monotonic_ns() if t_ns is None else t_ns
+        ints[K_SAMPLE_NS] = 0 if sample_ns is None else sample_ns
+        ints[K_MEAS_SEQ] += 1
+        ints[K_MEAS_NS] = time.monotonic_ns() if t_ns is None else t_ns
 
     def stale_after(self, seconds: float) -> None:
         """Hold the safe state when the newest measurement is older than this (0: never)."""
