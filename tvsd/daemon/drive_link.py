@@ -6,13 +6,13 @@ opens the configured serial port; `sil` starts the drive model behind a virtual 
 but for `inject` (SIL fault injection) and where the SIL scene puts the laser spot.
 
 Every state frame (cfg.mcu.state_rate_hz) hands the control thread the encoder angle, a speed over
-the last SPEED_WINDOW_S of frames, and the frame's arrival time. 2 ms: one frame apart, the
-8192-count encoder would quantise 25 rev/s to 1.2 % (2 ms: 0.24 %, for 1 ms of delay, nothing
-against the drive's 2.4 s time constant); and 2 ms is a whole number of both the 0.4 ms frames
-and the SIL plant's 1 ms encoder updates, so SIL speeds carry no beat between the two. Then it
-sends the control thread's latest command as the PWM duty. So the exchange with the MCU runs at
-the state rate (2.5 kHz on the ATmega328P), one control tick (0.1 ms) behind at most, and the
-10 kHz kernel never waits for it.
+the last SPEED_WINDOW_S of frames, the frame's arrival time and its sampling instant on the host's
+clock (the law carries the angle forward from there). 2 ms: one frame apart, the 8192-count
+encoder would quantise 25 rev/s to 1.2 % (2 ms: 0.24 %, for 1 ms of delay, nothing against the
+drive's 2.4 s time constant). Then it sends the control thread's latest command as the PWM duty,
+and keeps what it sent (`sent_volts`: the command the motor really got, held between frames, for
+the point stream's drive model). So the exchange with the MCU runs at the state rate (2.5 kHz on
+the ATmega328P), one control tick (0.1 ms) behind at most, and the 10 kHz kernel never waits for it.
 
 Safety, in three layers: the control thread holds PWM 0 once the newest state frame is older than
 cfg.mcu.link_timeout_ms (40 ms: tvsd.control.runner, FAULT_STALE); the link reports the loss
@@ -34,10 +34,11 @@ from tvsd.control import runner as RN
 from tvsd.control.runner import Runner
 from tvsd.errors import ConfigError, DeviceError, UsageError
 from tvsd.hw.mcu.link import FaultEvent, LinkSettings, McuLink, PulseEvent, StateSample
+from tvsd.hw.mcu.spec import CONTROL_TICK_HZ
 from tvsd.hw.mcu.steppers import Steppers
 
-FIRMWARE_TICK_HZ = 10_000  # the firmware's control tick (firmware/PROTOCOL.md: state_div counts these)
 SPEED_WINDOW_S = 2e-3
+SENT_HISTORY = 2048  # PWM frames kept: 0.8 s at 2.5 kHz (the point stream looks back < 0.5 s)
 SIL_TARGET_RANGE_M = 2.0  # the SIL scene: a surface 2 m from the PL (tvsd/sim/scene.py)
 HOME_TIMEOUT_S = 30.0
 SIL_FAULTS = ("link_loss", "link_restore")
@@ -76,12 +77,15 @@ class DriveLink:
                     f"encoder has {sil_counts}: make them equal"
                 )
         self.rad_per_count = 2.0 * math.pi / m.encoder_counts_per_rev
-        self.state_div = max(1, min(40, round(FIRMWARE_TICK_HZ / m.state_rate_hz)))
+        self.state_div = max(1, min(40, round(CONTROL_TICK_HZ / m.state_rate_hz)))
         self.duty_per_volt = 1.0 / cfg.drive.u_max_v
-        n = max(2, round(SPEED_WINDOW_S * FIRMWARE_TICK_HZ / self.state_div) + 1)
+        n = max(2, round(SPEED_WINDOW_S * CONTROL_TICK_HZ / self.state_div) + 1)
         self._ticks = np.zeros(n, dtype=np.int64)  # ring of the last frames: MCU ticks, angle
         self._phi = np.zeros(n)
         self._frames = 0
+        self._sent_host = np.zeros(SENT_HISTORY)  # ring of the PWM frames sent: host time, volts
+        self._sent_volts = np.zeros(SENT_HISTORY)
+        self._sent = 0
         self.clock_hz = 16_000_000
         self.plant: Any = None  # tvsd.sim.mcu_plant.McuPlant in SIL
         self.link: McuLink | None = None
@@ -154,10 +158,38 @@ class DriveLink:
         j = (self._frames - min(self._frames, len(self._ticks))) % len(self._ticks)  # oldest kept
         dt = (s.mcu_ticks - int(self._ticks[j])) / self.clock_hz
         omega = (phi - float(self._phi[j])) / dt if dt > 0 else float(self.runner.vals[RN.V_OMEGA])
-        self.runner.measured(phi, omega, round(s.host_time * 1e9))
+        # When the MCU sampled it, on the host's clock: the law carries the angle forward from
+        # there. Unknown before the clock sync, and for a frame placed by the fit alone.
+        sampled = self.to_host(s.mcu_ticks) if s.exact else math.nan
+        sample_ns = round(sampled * 1e9) if math.isfinite(sampled) else None
+        self.runner.measured(phi, omega, round(s.host_time * 1e9), sample_ns)
         self.last_state_host = s.host_time
         if self.link is not None:
-            self.link.send_pwm(self.runner.command * self.duty_per_volt)
+            duty = max(-1.0, min(1.0, self.runner.command * self.duty_per_volt))
+            if self.link.send_pwm(duty):
+                i = self._sent % SENT_HISTORY
+                self._sent_host[i], self._sent_volts[i] = time.monotonic(), duty / self.duty_per_volt
+                self._sent += 1
+
+    def sent_volts(self, t_mcu: np.ndarray) -> np.ndarray:
+        """The motor voltage commanded at MCU times: each PWM frame's from when it was sent (its
+        ~0.1 ms on the line and in the MCU's parser not counted) until the next; 0 before the
+        first kept, and before the clock sync."""
+        n = min(self._sent, SENT_HISTORY)
+        out = np.zeros(len(t_mcu))
+        if n == 0:
+            return out
+        idx = np.arange(self._sent - n, self._sent) % SENT_HISTORY
+        host, volts = self._sent_host[idx], self._sent_volts[idx]
+        m0, m1 = self.to_mcu_s(float(host[0])), self.to_mcu_s(float(host[-1]))
+        if not (math.isfinite(m0) and math.isfinite(m1)):
+            return out
+        # the clock map is affine: two points place every send (drift included)
+        span = float(host[-1] - host[0])
+        mcu = m0 + (host - host[0]) * ((m1 - m0) / span if span > 0 else 1.0)
+        k = np.searchsorted(mcu, t_mcu, side="right") - 1
+        out[k >= 0] = volts[k[k >= 0]]
+        return out
 
     def _on_stepper(self, st: Any) -> None:
         if self.steppers is not None:
@@ -208,7 +240,7 @@ class DriveLink:
             "source": self.backend,
             "state": "ok" if st.link_up else "lost",
             "port": self.link.settings.port,
-            "state_rate_hz": FIRMWARE_TICK_HZ / self.state_div,
+            "state_rate_hz": CONTROL_TICK_HZ / self.state_div,
             "frames_rx": st.frames_rx,
             "lost_frames": st.lost_frames,
             "crc_errors": st.crc_errors,

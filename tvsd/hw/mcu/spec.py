@@ -36,6 +36,9 @@ H2M, M2H = "h2m", "m2h"
 # id ranges by direction, as the YAML comments state them
 ID_RANGES = {H2M: range(0x01, 0x80), M2H: range(0x80, 0x100)}
 FRAME_OVERHEAD = 6  # SYNC, LEN, SEQ, ID, CRC16
+# The firmware's control tick (firmware/core/core_config.h CORE_TICK_HZ): it samples the encoder,
+# and `state_div` counts these ticks between state frames.
+CONTROL_TICK_HZ = 10_000
 
 
 @dataclass(frozen=True)
