@@ -189,6 +189,28 @@ def test_encoder_follows_shaft(manual: tuple[VirtualMcu, serial.Serial, Reader])
     assert _ticks16_steps(states) == {CLOCK_HZ // 10_000}, "one state frame per tick, none lost"
 
 
+def test_encoder_moves_linearly_between_feeds_on_the_manual_clock(
+    manual: tuple[VirtualMcu, serial.Serial, Reader],
+) -> None:
+    """A real encoder counts all the way: each control tick between two feeds samples the
+    linear ramp, also across a whole revolution (whose zero pulse advances the core mid-ramp)."""
+    vm, port, rd = manual
+    _arm(port, rd, watchdog_ms=1000, state_div=1)
+    t0 = round(vm.time_s / TICK_S) * TICK_S + 0.001  # feeds on tick times
+    a0, a1 = 6.0, 6.0 + 0.5  # crosses 2π
+    vm.set_shaft(a0, t0)
+    vm.set_shaft(a1, t0 + 0.001)
+    vm.advance_to(t0 + 0.0015)
+    states = rd.collect("state", timeout=0.3)
+    counts = {}
+    for st in states:
+        counts[st.fields["ticks16"]] = st.fields["encoder16"]
+    for k in range(1, 10):  # the 9 ticks strictly inside the 1 ms ramp
+        t = t0 + k * TICK_S
+        want = round((a0 + (a1 - a0) * k / 10) / math.tau * 4096)
+        assert counts[round(t * CLOCK_HZ) % 2**16] == want, f"tick {k}"
+
+
 def test_pulse_events_sequence(manual: tuple[VirtualMcu, serial.Serial, Reader]) -> None:
     vm, _, rd = manual
     vm.set_shaft(0.0, 0.010)

@@ -58,7 +58,6 @@ from tvsd.sim import runs
 
 DRAIN_S = 0.02  # how often recorded ticks move on
 FAULT_WINDOW_S = 2.0  # full-rate control ticks recorded before each fault
-COMMAND_HISTORY = 5000  # control ticks (0.5 s) the compensation looks back for the command
 FAULT_CAUSES = {
     RN.FAULT_OVERRUN: ("control loop overran its deadline streak", "safe state: PWM 0"),
     RN.FAULT_STALE: ("MCU state frames stopped", "safe state: PWM 0 from the control thread"),
@@ -306,14 +305,6 @@ class Daemon:
         if self.feed is not None and self.state == "scanning":
             self._publish(self.feed.push(batch))
 
-    def _voltage_at(self, t_mcu: np.ndarray) -> np.ndarray:
-        """The command the control thread sent at MCU times (the last COMMAND_HISTORY ticks)."""
-        rows = self.runner.recent(COMMAND_HISTORY)
-        t0 = self.runner.ints[L.K_START_NS] / 1e9  # the loop's start on CLOCK_MONOTONIC
-        host = t0 + rows[:, RN.R_T]
-        mcu = host + (self.drive.to_mcu_s(float(host[-1])) - float(host[-1])) if len(rows) else host
-        return np.interp(t_mcu, mcu, rows[:, RN.R_U]) if len(rows) else np.zeros_like(t_mcu)
-
     # --- state -------------------------------------------------------------------------------------
     def set_state(self, state: str) -> None:
         if state != self.state:
@@ -357,7 +348,7 @@ class Daemon:
             self.feed = ImuFeed(
                 self.stream,
                 self.drive.to_mcu_s,
-                self._voltage_at,
+                self.drive.sent_volts,
                 model,
                 rate_hz=self.cfg.scan.imu_rate_hz,
                 axis=SA_AXES[imu.sa_axis],

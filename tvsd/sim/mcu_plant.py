@@ -1,12 +1,15 @@
 """SIL bridge: the drive model turns the virtual MCU's inputs, the MCU's PWM turns the model.
 
 The plant (tvsd.model.plant's kernel, open loop) is stepped in chunks (1 ms by default) on the
-virtual MCU's manual clock. Each chunk applies the MCU's PWM duty × drive voltage, held over the
-chunk (the host sets the PWM through ``McuLink.send_pwm``: open loop here), and then feeds the MCU
-what the sensors would see during the chunk, with the shaft angle interpolated linearly in time:
+virtual MCU's manual clock. Each chunk applies the MCU's PWM duty × drive voltage (the host sets
+the PWM through ``McuLink.send_pwm``): paced, each PWM frame from the moment it arrived, to the
+control step (0.1 ms), as the motor integrates every one of a 2.5 kHz stream; stepped as fast as
+possible (:meth:`run_until`), the duty of the chunk's start, held. Then it feeds the MCU what
+the sensors would see during the chunk, with the shaft angle interpolated linearly in time:
 
-- the encoder count (``counts_per_rev`` from ``sil.measurement.encoder_counts_per_rev``), sample
-  and hold at the chunk boundaries (and at each optical crossing);
+- the encoder count (``counts_per_rev`` from ``sil.measurement.encoder_counts_per_rev``) at the
+  chunk's end and at each optical crossing, and in between linear at every firmware control tick
+  (0.1 ms, when the firmware samples it: ``VirtualMcu.set_shaft`` on the manual clock);
 - the zero pulse at each crossing of 2πk (``VirtualMcu.set_shaft``);
 - the optical pulse at each crossing of 2πk + β, β being the SA angle of the configured target
   (φ, γ, range) by tvsd.scan.geometry;
@@ -41,6 +44,7 @@ import bisect
 import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -148,6 +152,8 @@ class McuPlant:
             self._state[: len(self.initial_state)] = self.initial_state
         self._ctrl = self.setup.controller(K.MODE_OPEN, 0.0)
         self._u = np.zeros(self._n)
+        self._pwm_pending: deque[tuple[float, float]] | None = None  # paced: (sim time, duty) to apply
+        self._duty = 0.0  # the duty in force at the end of the last chunk (paced)
         self._out = np.zeros((1, K.N_OUT))
         self._seed = self.setup.seed  # the kernel reseeds numpy when seed >= 0: only once
         self.t = 0.0  # sim time of the plant (= the MCU's manual clock after each chunk)
@@ -189,9 +195,13 @@ class McuPlant:
 
     # ---- stepping ------------------------------------------------------------------------
     def step(self) -> None:
-        """One chunk: the MCU's motor voltage held over it, then the sensors fed."""
-        self._u[:] = self.mcu.motor_volts
+        """One chunk: the MCU's motor voltage over it (paced: each PWM change from its arrival;
+        else the present one held), then the sensors fed."""
         t0, a0 = self.t, self.angle
+        if self._pwm_pending is None:
+            self._u[:] = self.mcu.motor_volts
+        else:
+            self._chunk_volts(t0)
         sub = self.setup.substeps
         K.run(
             self._state,
@@ -217,6 +227,27 @@ class McuPlant:
         self._feed(t1, a1)
         self.t = t1
         self._remember(float(self._out[0, K.O_DIST_MEAN]))
+
+    def _chunk_volts(self, t0: float) -> None:
+        """Each control step of the chunk gets the duty in force at its start: the host's PWM
+        frames apply from their arrival on the pacing line (a frame that came while an earlier
+        chunk was being stepped applies from this chunk's start), so a 2.5 kHz PWM stream is not
+        sampled once per chunk. A change the firmware made itself (its watchdog's cut) shows
+        in the duty now once no frame is pending, and applies from the chunk's start."""
+        changes, duty_now = self.mcu.pwm_changes()
+        pending = self._pwm_pending
+        assert pending is not None
+        if changes:
+            sim = self.host_to_sim([t for t, _ in changes])
+            pending.extend(zip(sim.tolist(), (d for _, d in changes), strict=True))
+        elif not pending:
+            self._duty = duty_now
+        dt = self.setup.dt
+        for k in range(self._n):
+            start = t0 + k * dt
+            while pending and pending[0][0] <= start + 0.5 * dt:
+                self._duty = pending.popleft()[1]
+            self._u[k] = self._duty * self.mcu.drive_volts
 
     # ---- history ring ---------------------------------------------------------------------
     def _remember(self, disturbance: float) -> None:
@@ -277,6 +308,8 @@ class McuPlant:
         if self._thread is not None:
             return
         self._stop.clear()
+        self.mcu.log_pwm()
+        self._pwm_pending, self._duty = deque(), self.mcu.pwm_duty
         self._thread = threading.Thread(target=self._paced, name="mcu-plant", daemon=True)
         self._thread.start()
 

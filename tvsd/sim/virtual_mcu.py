@@ -103,6 +103,7 @@ def _load(path: Path) -> tuple[ctypes.CDLL, Path]:
         ("vmcu_rx_bytes", None, [buf, ctypes.c_size_t]),
         ("vmcu_tx_bytes", ctypes.c_size_t, [buf, ctypes.c_size_t]),
         ("vmcu_set_encoder", None, [i32]),
+        ("vmcu_encoder_ramp", None, [u64, ctypes.c_double, u64, ctypes.c_double]),
         ("vmcu_pulse", None, [u8, u64]),
         ("vmcu_set_limit", None, [u8, ctypes.c_int, i32]),
         ("vmcu_pwm", ctypes.c_int16, []),
@@ -150,6 +151,10 @@ class VirtualMcu:
         self._stop = threading.Event()
         self._closed = False
         self.cable_cut = False  # fault injection: both directions lost, the core runs on
+        # (time.monotonic() of arrival, duty) of each PWM change the host's bytes made, when
+        # enabled (log_pwm): a paced plant applies each from its arrival, as a motor would.
+        self._pwm_log: list[tuple[float, float]] | None = None
+        self._logged_pwm = 0
         self._thread = threading.Thread(target=self._pump, name="virtual-mcu", daemon=True)
         self._thread.start()
 
@@ -198,13 +203,20 @@ class VirtualMcu:
 
     # ---- plant inputs -------------------------------------------------------------------
     def set_shaft(self, angle_rad: float, t_s: float | None = None) -> None:
-        """Shaft at angle_rad (unwrapped) at t_s: the encoder reads the new count from t_s on
-        (sample and hold between calls), and a zero pulse is latched for every multiple of
-        2*pi crossed since the last call, at the time interpolated linearly between them."""
+        """Shaft at angle_rad (unwrapped) at t_s: the encoder reads the new count from t_s on,
+        and a zero pulse is latched for every multiple of 2*pi crossed since the last call, at
+        the time interpolated linearly between them. Between two calls the encoder moves
+        linearly on the manual clock (the ticks in between have not run yet: a real encoder
+        counts all the way) and holds on the wall clock (they have)."""
         t = self._now_or(t_s)
         prev = self._shaft
         self._shaft = (t, angle_rad)
+        counts = angle_rad / math.tau * self.counts_per_rev
         with self._lock:
+            if prev is not None and self.clock == "manual":
+                # first: the zero pulses below advance the core through part of the ramp
+                c_prev = prev[1] / math.tau * self.counts_per_rev
+                self._lib.vmcu_encoder_ramp(self._ticks(prev[0]), c_prev, self._ticks(t), counts)
             if prev is not None:
                 t_prev, a_prev = prev
                 lo, hi = sorted((a_prev, angle_rad))
@@ -216,7 +228,7 @@ class VirtualMcu:
             if self.clock == "manual":
                 # up to the tick before t: the control tick at t itself samples the new count
                 self._advance_locked(self._ticks(t) - 1)
-            count = round(angle_rad / math.tau * self.counts_per_rev)
+            count = round(counts)
             self._lib.vmcu_set_encoder(((count + 2**31) % 2**32) - 2**31)  # wraps like the chip
 
     def pulse(self, channel: int = PULSE_OPTICAL, t_s: float | None = None) -> None:
@@ -244,6 +256,20 @@ class VirtualMcu:
         """Motor PWM duty, -1..1 (sign = H-bridge direction)."""
         with self._lock:
             return int(self._lib.vmcu_pwm()) / _DUTY_FULL
+
+    def log_pwm(self) -> None:
+        """From now on, note when each PWM change from the host arrived (see pwm_changes)."""
+        with self._lock:
+            self._pwm_log, self._logged_pwm = [], int(self._lib.vmcu_pwm())
+
+    def pwm_changes(self) -> tuple[list[tuple[float, float]], float]:
+        """The PWM changes the host's frames made since the last call, as (time.monotonic() of
+        arrival, duty), and the duty now (which also shows the firmware's own cuts)."""
+        with self._lock:
+            log = self._pwm_log or []
+            if self._pwm_log is not None:
+                self._pwm_log = []
+            return log, int(self._lib.vmcu_pwm()) / _DUTY_FULL
 
     @property
     def motor_volts(self) -> float:
@@ -297,6 +323,11 @@ class VirtualMcu:
                 if data:
                     raw = (ctypes.c_uint8 * len(data)).from_buffer_copy(data)
                     self._lib.vmcu_rx_bytes(raw, len(data))
+                    if self._pwm_log is not None:
+                        pwm = int(self._lib.vmcu_pwm())
+                        if pwm != self._logged_pwm:
+                            self._pwm_log.append((time.monotonic(), pwm / _DUTY_FULL))
+                            self._logged_pwm = pwm
                 self._drain_locked()
                 if self._backlog:  # non-blocking; under the lock, as advances append to it
                     try:

@@ -1,5 +1,6 @@
 /* Host board layer: the virtual MCU. Time is simulated; the "pins" are variables read back
  * through vmcu.h. */
+#include <math.h>
 #include <string.h>
 
 #include "board.h"
@@ -11,6 +12,11 @@ static struct {
     uint64_t now, next_tick, step_due;
     bool step_active;
     int32_t encoder;
+    /* The encoder between two plant feeds: linear from c0 at t0 to c1 at t1 (counts, unwrapped),
+     * sampled at each control tick strictly inside, as a real encoder counts continuously. */
+    bool ramp;
+    uint64_t ramp_t0, ramp_t1;
+    double ramp_c0, ramp_c1;
     int16_t pwm;
     bool laser;
     bool dir_negative[STEPPER_AXES];
@@ -64,6 +70,15 @@ VMCU_API void vmcu_init(void)
 VMCU_API uint32_t vmcu_clock_hz(void) { return BOARD_CLOCK_HZ; }
 VMCU_API uint64_t vmcu_now(void) { return vm.now; }
 
+static int32_t encoder_now(void)
+{
+    if (!vm.ramp || vm.now <= vm.ramp_t0 || vm.now >= vm.ramp_t1)
+        return vm.encoder;
+    double f = (double)(vm.now - vm.ramp_t0) / (double)(vm.ramp_t1 - vm.ramp_t0);
+    double c = vm.ramp_c0 + f * (vm.ramp_c1 - vm.ramp_c0);
+    return (int32_t)(uint32_t)(int64_t)llround(c); /* wraps like the chip's 32-bit count */
+}
+
 VMCU_API void vmcu_advance_to(uint64_t t)
 {
     while (true) {
@@ -76,7 +91,7 @@ VMCU_API void vmcu_advance_to(uint64_t t)
             board_stepper_wake();
         } else {
             vm.next_tick += CORE_TICKS_PER_TICK;
-            core_tick((uint32_t)vm.now, vm.encoder);
+            core_tick((uint32_t)vm.now, encoder_now());
         }
         core_poll();
     }
@@ -99,7 +114,20 @@ VMCU_API size_t vmcu_tx_bytes(uint8_t *buf, size_t max)
     return n;
 }
 
-VMCU_API void vmcu_set_encoder(int32_t count) { vm.encoder = count; }
+VMCU_API void vmcu_set_encoder(int32_t count)
+{
+    vm.encoder = count;
+    vm.ramp = false;
+}
+
+VMCU_API void vmcu_encoder_ramp(uint64_t t0, double c0, uint64_t t1, double c1)
+{
+    vm.ramp = t1 > t0;
+    vm.ramp_t0 = t0;
+    vm.ramp_t1 = t1;
+    vm.ramp_c0 = c0;
+    vm.ramp_c1 = c1;
+}
 
 VMCU_API void vmcu_pulse(uint8_t channel, uint64_t t)
 {
