@@ -20,7 +20,7 @@ from tvsd.hw.mpu6050 import (
     to_si,
 )
 from tvsd.sim.imu_motion import SyntheticMotion, SyntheticParams
-from tvsd.sim.mpu6050 import SimI2CBus, SimMpu6050, decode_counter
+from tvsd.sim.mpu6050 import SimI2CBus, SimMpu6050, decode_counter, dlpf_sos
 
 
 def rig(who_am_i: int = 0x68, signal: str = "counter", **motion: float):
@@ -205,3 +205,16 @@ def test_twin_clips_like_a_real_mpu6050():
     for lo, hi in ((accel_g.min(), accel_g.max()), (real_acc.min(), real_acc.max())):
         assert lo == pytest.approx(-2.0, abs=1e-12) and hi == pytest.approx(32767 / 16384, abs=1e-12)
     assert np.sum(accel_g[:, 1] == accel_g[:, 1].max()) > 5  # clipped runs, as in the record
+
+
+@pytest.mark.parametrize("dlpf_cfg", [1, 2])
+def test_twin_dlpf_delays_what_the_datasheet_says_and_keeps_its_bandwidth(dlpf_cfg):
+    """The daemon subtracts DLPF_DELAY_S from sample times: the twin must delay that much (a
+    0.7 ms error misplaced the SA acceleration against the pulses); −3 dB stays at the bandwidth."""
+    from scipy.signal import group_delay, sos2tf, sosfreqz
+
+    sos = dlpf_sos(dlpf_cfg, 1000.0)
+    _, gd = group_delay(sos2tf(sos), w=[1.0], fs=1000.0)
+    assert gd[0] / 1000.0 == pytest.approx(reg.DLPF_DELAY_S[dlpf_cfg], abs=2e-6)
+    _, h = sosfreqz(sos, worN=[reg.DLPF_GYRO_BW_HZ[dlpf_cfg]], fs=1000.0)
+    assert abs(h[0]) == pytest.approx(2**-0.5, rel=1e-3)  # the allpass changes no magnitude
