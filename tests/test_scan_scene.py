@@ -201,3 +201,33 @@ def test_sigma_carries_the_acceleration_inside_imu_samples_at_25_rps():
     # ~450 points over one vibration realisation: the rms has a few % sampling spread; measured
     # 0.96–1.05 over seeds 11–15.
     assert 0.85 < ratio < 1.15, ratio
+
+
+def test_stream_emits_each_point_once_the_imu_passes_its_own_next_zero_pulse():
+    """IMU batches every 38 ms, 20 ms behind the pulses (a 20 ms FIFO poll plus the filter's
+    delay): a point waits for its next zero pulse (≤ a turn, 50 ms at 20 rev/s) and the batch that
+    passes it (≤ 38 + 20 ms). Judged by the newest zero pulse instead, the batch
+    period and the turn beat and points waited up to 10 turns (430 ms in the daemon)."""
+    cfg = load_config()
+    trace, t_start = scene.spin_trace(cfg, 20.0, 0.8069, IMBALANCE, 2.0, seed=5)
+    settings = ScanSettings()
+    aimed = aim(*doe_b_target(60.0, 15.0, 2.0, settings.baseline_m), settings)
+    rec = scene.record(trace, aimed.beta, settings, scene.drive_model(cfg), t_start, np.random.default_rng(2))
+    stream = PointStream(settings, aimed.phi, aimed.gamma, rec.tick_s, damping=rec.known.damping)
+    k = rec.known
+    fed, next_batch, delays = 0, k.t0, []
+    for kind, tick in zip(rec.kind, rec.ticks, strict=True):
+        now = tick * rec.tick_s
+        out = []
+        if now >= next_batch:
+            upto = int((now - 0.020 - k.t0) / k.dt)
+            if upto > fed:
+                out += stream.add_samples(k.t0 + fed * k.dt, k.imu[fed:upto], k.drive[fed:upto])
+                fed = upto
+            next_batch += 0.038
+        out += stream.add_pulse(int(kind), int(tick))
+        delays += [now - p["t"] for p in out]
+    assert len(delays) > 20
+    # next zero ≤ 50 ms, then the batch covering it: 20 ms + a 1 ms cell behind, every 38 ms, taken
+    # at the first pulse after its time (pulses every ~25 ms here): 134 ms; measured 100 ms.
+    assert max(delays) < 0.050 + 0.021 + 0.038 + 0.025
