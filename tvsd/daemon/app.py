@@ -145,7 +145,7 @@ class Daemon:
             await self.drive.start(*(math.radians(v) for v in self.aim_deg))
             await self._start_optional()
             tasks.append(asyncio.create_task(self._initial_aim()))
-            tasks = [asyncio.create_task(self._drain()), asyncio.create_task(self._heartbeat())]
+            tasks += [asyncio.create_task(self._drain()), asyncio.create_task(self._heartbeat())]
             self.set_state("idle")
             gc.freeze()  # the devices' objects too (no collection now: the link is running)
             self.notifier.ready(status="idle")
