@@ -22,9 +22,11 @@ degrades gracefully. `streak_limit` consecutive ticks that wake more than a peri
 safe state (K_FAULT = FAULT_OVERRUN, command 0) until the I/O side clears K_FAULT.
 
 Hardware mode (and the daemon's SIL, where the plant sits behind the MCU link): the I/O side writes
-each encoder measurement with its arrival time. A measurement older than K_STALE_NS while the
-drive is commanded latches FAULT_STALE: the command is 0 from the first tick past the limit,
-whatever the event loop is doing (the MCU link's own loss report comes later, from asyncio).
+each encoder measurement with its arrival time and, once the clock sync places it, the MCU's
+sampling instant, from which the law carries the angle forward at the measured speed. A
+measurement older than K_STALE_NS while the drive is commanded latches FAULT_STALE: the command is
+0 from the first tick past the limit, whatever the event loop is doing (the MCU link's own loss
+report comes later, from asyncio).
 
 SIL: the plant kernel (tvsd.model.plant.run, open loop) is stepped inside the same loop by the
 real elapsed time with the command held since the previous tick, so the simulated scanner runs in
