@@ -182,6 +182,9 @@ def test_overrun_streak_latches_the_safe_state(setup: Setup) -> None:
     r.ints[RN.K_BUSY_NS] = 0
     r.stop(5.0)
     assert r.stats().missed_ticks >= 2 * r.ints[L.K_LATE_TICKS] - 1  # each late tick skipped ≥ 2
+    # Every tick after the first is late, so the longest run is the whole run of late ticks.
+    assert r.stats().longest_late_run >= 20
+    assert r.stats().longest_late_run >= r.ints[L.K_LATE_TICKS] - 1
 
 
 def test_unmeetable_period_trips_the_fault(setup: Setup) -> None:

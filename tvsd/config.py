@@ -89,6 +89,11 @@ class ControlConfig:
         math.pi, doc="scanning mode: the reference slips beyond this lag (anti-windup)", unit="rad", gt=0
     )
 
+    @property
+    def overrun_streak_ticks(self) -> int:
+        """The overrun latch in ticks: this many late ticks in a row put the drive in its safe state."""
+        return max(1, round(self.overrun_streak_ms * 1e-3 * self.rate_hz))
+
 
 @dataclass(frozen=True, kw_only=True)
 class GeometryConfig:

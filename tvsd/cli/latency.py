@@ -57,3 +57,6 @@ def _print(res: dict[str, Any]) -> None:
     else:
         print(f"realtime: {rt}")
     print(f"SIL plant at the end: {res['sil_rps']:.2f} rev/s")
+    run, latch = res["loop"]["longest_late_run"], res["overrun_latch_ticks"]
+    verdict = "would have latched" if res["would_latch"] else "below"
+    print(f"longest run of late ticks: {run} ({verdict} the daemon's overrun latch, {latch} ticks)")

@@ -40,6 +40,7 @@ _clock_nanosleep: Any = types.ExternalFunction(
     K_MISSED,  # deadlines skipped: a tick that wakes more than one period late skips them
     K_LATE_TICKS,  # ticks that woke more than one period late
     K_STREAK,  # current run of consecutive late ticks
+    K_LONGEST_STREAK,  # longest such run so far (what an overrun latch at that length would see)
     K_MAX_LATE_NS,
     K_START_NS,
     K_LAST_NS,  # wake time of the last tick (CLOCK_MONOTONIC)
@@ -47,8 +48,8 @@ _clock_nanosleep: Any = types.ExternalFunction(
     K_WORK_NS,  # sum over ticks of wake → work done (monotonic)
     K_WORK_MAX_NS,
     K_RUNNING,
-) = range(14)
-N_TIMING = 14
+) = range(15)
+N_TIMING = 15
 
 # Histogram: bin 0 = [0, 1 µs), then 25 log-spaced bins per decade to 10 ms, last bin ≥ 10 ms.
 BINS_PER_DECADE = 25
@@ -114,6 +115,8 @@ def wait_tick(
         ints[K_MISSED] += skipped
         ints[K_LATE_TICKS] += 1
         ints[K_STREAK] += 1
+        if ints[K_STREAK] > ints[K_LONGEST_STREAK]:
+            ints[K_LONGEST_STREAK] = ints[K_STREAK]
         deadline += skipped * period
     else:
         ints[K_STREAK] = 0
@@ -158,6 +161,7 @@ class Jitter:
     ticks: int
     missed_ticks: int
     late_ticks: int
+    longest_late_run: int
     rate_hz: float
     p50_us: float
     p99_us: float
@@ -194,6 +198,7 @@ def jitter(ints: np.ndarray, hist: np.ndarray) -> Jitter:
         ticks=ticks,
         missed_ticks=int(ints[K_MISSED]),
         late_ticks=int(ints[K_LATE_TICKS]),
+        longest_late_run=int(ints[K_LONGEST_STREAK]),
         rate_hz=(ticks - 1) / elapsed if ticks > 1 and elapsed > 0 else math.nan,
         p50_us=quantile_us(hist, 0.5),
         p99_us=quantile_us(hist, 0.99),
@@ -228,6 +233,7 @@ def merge(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray]) ->
     ints = ia + ib
     ints[K_MAX_LATE_NS] = max(ia[K_MAX_LATE_NS], ib[K_MAX_LATE_NS])
     ints[K_WORK_MAX_NS] = max(ia[K_WORK_MAX_NS], ib[K_WORK_MAX_NS])
+    ints[K_LONGEST_STREAK] = max(ia[K_LONGEST_STREAK], ib[K_LONGEST_STREAK])
     # Rate over the two runs' own durations (the gap between them is not the loop's).
     span = (ia[K_LAST_NS] - ia[K_START_NS]) + (ib[K_LAST_NS] - ib[K_START_NS])
     intervals = int(ia[K_TICKS] + ib[K_TICKS]) - 2
@@ -255,22 +261,30 @@ def decades(hist: np.ndarray) -> list[int]:
     return out
 
 
+LATCH_OFF = 2**62  # a streak limit no run reaches
+
+
 def compare(seconds: float, *, realtime: bool = True, rps: float = 25.0) -> dict[str, Any]:
     """Floor (half before, half after) and the SIL control loop, each `seconds` long, same thread setup.
 
-    Returns {"floor": Jitter, "loop": Jitter, "added": loop − floor, "realtime": ..., histograms}.
+    Returns {"floor": Jitter, "loop": Jitter, "added": loop − floor, "realtime": ..., histograms,
+    "sil_rps", "overrun_latch_ticks" (the daemon's), "would_latch" (the loop's longest late run reached it)}.
     """
     # Imported here: the runner builds on this module's primitives.
     from tvsd.config import load_config
     from tvsd.control.runner import V_OMEGA, Runner, request_realtime
     from tvsd.sim.runs import Setup
 
-    runner = Runner(Setup.from_config(load_config(params="default")), realtime=realtime)
+    cfg = load_config(params="default")
+    # The overrun latch is off: on a busy machine it would stop the law mid-measurement (and the
+    # plant with it); the longest run of late ticks is reported against the daemon's latch instead.
+    latch = cfg.control.overrun_streak_ticks
+    runner = Runner(Setup.from_config(cfg), realtime=realtime, streak_limit=LATCH_OFF)
     period = runner.ints[K_PERIOD_NS] / NS
     warm_up()
     runner.start(max_ticks=2)  # load the kernel outside the measurement
     runner.join(120.0)
-    runner = Runner(runner.setup, realtime=realtime)
+    runner = Runner(runner.setup, realtime=realtime, streak_limit=LATCH_OFF)
     setup_thread = request_realtime if realtime else None
     before = run_floor(seconds / 2, period, setup_thread)
     runner.scan(rps)
@@ -293,6 +307,8 @@ def compare(seconds: float, *, realtime: bool = True, rps: float = 25.0) -> dict
         "floor_decades": decades(before[1] + after[1]),
         "loop_decades": decades(runner.hist),
         "sil_rps": float(runner.vals[V_OMEGA]) / (2 * math.pi),
+        "overrun_latch_ticks": latch,
+        "would_latch": ld["longest_late_run"] >= latch,
     }
 
 

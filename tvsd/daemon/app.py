@@ -89,8 +89,9 @@ class Daemon:
         self.out = out  # the foreground status line (make run); None under systemd
         self.config_text = config_text
         self.setup = runs.Setup.from_config(cfg)
-        streak = max(1, round(cfg.control.overrun_streak_ms * 1e-3 * cfg.control.rate_hz))
-        self.runner = RN.Runner(self.setup, sil=False, realtime=realtime, streak_limit=streak)
+        self.runner = RN.Runner(
+            self.setup, sil=False, realtime=realtime, streak_limit=cfg.control.overrun_streak_ticks
+        )
         self.drive = DriveLink(
             cfg,
             self.runner,
