@@ -19,7 +19,9 @@ tick (100 µs), which is harmless for gain sets that each satisfy the conditions
 
 The law uses the measured time step: references advance by the real elapsed time, so a late tick
 degrades gracefully. `streak_limit` consecutive ticks that wake more than a period late latch the
-safe state (K_FAULT = FAULT_OVERRUN, command 0) until the I/O side clears K_FAULT.
+safe state (K_FAULT = FAULT_OVERRUN, command 0) until the I/O side clears K_FAULT. The default
+is the daemon's (control.overrun_streak_ms 100): a shorter latch trips on a loaded machine's
+ordinary stalls (50 ticks did, in CI, and stopped a test's plant).
 
 Hardware mode (and the daemon's SIL, where the plant sits behind the MCU link): the I/O side writes
 each encoder measurement with its arrival time and, once the clock sync places it, the MCU's
@@ -265,7 +267,7 @@ class Runner:
         *,
         sil: bool = True,
         period_s: float | None = None,
-        streak_limit: int = 50,
+        streak_limit: int = 1000,  # the daemon's default: 100 ms of late ticks at 10 kHz
         record: int = 65536,
         realtime: bool = False,
     ) -> None:
