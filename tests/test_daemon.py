@@ -35,24 +35,48 @@ def tvsctl(sock: Path, *argv: str, check: bool = True) -> subprocess.CompletedPr
     return proc
 
 
+def rpc(sock: Path, method: str, **params: object) -> dict:
+    """One JSON-RPC call over the socket; the reply object (result or error)."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+        s.connect(str(sock))
+        s.settimeout(10)
+        f = s.makefile("rwb")
+        f.write(json.dumps({"jsonrpc": "2.0", "id": 1, "method": method, "params": params}).encode() + b"\n")
+        f.flush()
+        return json.loads(f.readline())
+
+
 def status(sock: Path) -> dict:
-    return json.loads(tvsctl(sock, "status", "--json").stdout)
+    """`tvsctl status --json`'s object, asked from this process: a tvsctl per poll would cost
+    ~80 ms of CPU (interpreter start), 0.4 of a core at 5 polls/s, taken from the SIL devices."""
+    return rpc(sock, "status")["result"]
 
 
-def wait_for(predicate, timeout: float, what: str) -> None:  # type: ignore[no-untyped-def]
+def wait_for(predicate, timeout: float, what: str, sock: Path | None = None) -> None:  # type: ignore[no-untyped-def]
+    """Poll until `predicate()`; with `sock`, a daemon that has gone to its safe state fails the
+    wait at once, naming the faults (on a loaded machine: which stall), rather than at the timeout."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if predicate():
             return
+        if sock is not None and (s := status(sock))["state"] == "fault":
+            raise AssertionError(f"safe state while waiting for {what}: {[f['cause'] for f in s['faults']]}")
         time.sleep(0.2)
     raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+
+
+def spin_to(sock: Path, rps: float, timeout: float = 30.0, tol: float = 0.5) -> None:
+    tvsctl(sock, "speed", f"{rps:g}")
+    wait_for(lambda: abs(status(sock)["rps"] - rps) < tol, timeout, f"{rps:g} rev/s", sock)
 
 
 @pytest.fixture
 def daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path, Path]]:
     sock, data = tmp_path / "run" / "tvsd.sock", tmp_path / "data"
+    # as `make run` runs it: the control thread asks for SCHED_FIFO (granted as root, as in CI)
+    argv = ["--sil", "--realtime", "--socket", str(sock), "--data-dir", str(data)]
     proc = subprocess.Popen(
-        [sys.executable, "-m", "tvsd.daemon.main", "--sil", "--socket", str(sock), "--data-dir", str(data)],
+        [sys.executable, "-m", "tvsd.daemon.main", *argv],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -71,7 +95,7 @@ def daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path, Path]]
 
 def test_status_has_the_promised_shape_and_the_socket_is_0660(daemon):
     _, sock, _ = daemon
-    s = status(sock)
+    s = json.loads(tvsctl(sock, "status", "--json").stdout)
     assert {"state", "rps", "loop", "imu", "link", "faults"} <= s.keys()
     assert {"rate_hz", "missed_ticks", "jitter_p99_us"} <= s["loop"].keys()
     assert s["state"] == "idle" and s["faults"] == []
@@ -80,8 +104,7 @@ def test_status_has_the_promised_shape_and_the_socket_is_0660(daemon):
 
 def test_spin_scan_points_record_export_and_orderly_stop(daemon, tmp_path):
     proc, sock, data = daemon
-    tvsctl(sock, "speed", "20")
-    wait_for(lambda: abs(status(sock)["rps"] - 20) < 0.5, 30, "20 rev/s")
+    spin_to(sock, 20)
     tvsctl(sock, "record", "start")
     tvsctl(sock, "scan", "start")
     points = tvsctl(sock, "points", "--count", "3", "--json")
@@ -89,7 +112,7 @@ def test_spin_scan_points_record_export_and_orderly_stop(daemon, tmp_path):
     assert len(rows) == 3 and all({"x", "y", "z", "sigma_x", "flags", "t_mono"} <= r.keys() for r in rows)
     # t_mono is the optical pulse on this machine's monotonic clock: it lies in the past.
     assert all(r["t_mono"] < time.monotonic() for r in rows)
-    wait_for(lambda: status(sock)["points"]["per_s"] > 5, 15, "a point stream at the rotation rate")
+    wait_for(lambda: status(sock)["points"]["per_s"] > 5, 15, "a point stream at the rotation rate", sock)
     tvsctl(sock, "record", "stop")
     recs = list(data.iterdir())
     assert len(recs) == 1
@@ -161,28 +184,17 @@ def test_kill_9_during_recording_reads_back(daemon, tmp_path):
     assert len(loop) >= 2000
 
 
-def rpc(sock: Path, method: str, **params: object) -> dict:
-    """One JSON-RPC call over the socket; the reply object (result or error)."""
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-        s.connect(str(sock))
-        s.settimeout(10)
-        f = s.makefile("rwb")
-        f.write(json.dumps({"jsonrpc": "2.0", "id": 1, "method": method, "params": params}).encode() + b"\n")
-        f.flush()
-        return json.loads(f.readline())
-
-
 def test_mcu_link_loss_holds_pwm_0_within_50_ms_of_the_last_frame(daemon):
     _, sock, _ = daemon
-    tvsctl(sock, "speed", "15")
-    wait_for(lambda: abs(status(sock)["rps"] - 15) < 0.5, 30, "15 rev/s")
+    spin_to(sock, 15)
     assert "result" in rpc(sock, "inject_fault", device="mcu", fault="link_loss")
     wait_for(lambda: status(sock)["state"] == "fault", 10, "the safe state")
     s = status(sock)
     stale = [f for f in s["faults"] if f["cause"].startswith("MCU state frames stopped")]
     assert len(stale) == 1 and "safe state" in stale[0]["action"]
     # The control thread checks every 0.1 ms tick against the 40 ms limit: the issue's bound is
-    # 50 ms after the last frame, which leaves 10 ms for a late wake-up of the control thread.
+    # 50 ms after the last frame, which leaves 10 ms for a late wake-up of the control thread
+    # (SCHED_FIFO, as the daemon runs: its lateness is ~50 µs p99 here, README "Benchmarks").
     assert 40.0 <= stale[0]["safe_after_ms"] <= 50.0
     wait_for(lambda: any("link lost" in f["cause"] for f in status(sock)["faults"]), 5, "the link's report")
     assert status(sock)["link"]["state"] == "lost"
@@ -191,8 +203,7 @@ def test_mcu_link_loss_holds_pwm_0_within_50_ms_of_the_last_frame(daemon):
     rpc(sock, "inject_fault", device="mcu", fault="link_restore")
     wait_for(lambda: status(sock)["link"]["state"] == "ok", 10, "the link back")
     tvsctl(sock, "faults", "--clear")
-    tvsctl(sock, "speed", "10")
-    wait_for(lambda: abs(status(sock)["rps"] - 10) < 0.5, 30, "10 rev/s after the fault")
+    spin_to(sock, 10)
 
 
 def test_overrun_streak_puts_the_drive_in_its_safe_state(daemon):
@@ -214,15 +225,14 @@ def test_fault_injection_names_what_it_accepts(daemon):
 
 def test_imu_loss_flags_points_and_scanning_goes_on(daemon):
     _, sock, _ = daemon
-    tvsctl(sock, "speed", "20")
-    wait_for(lambda: abs(status(sock)["rps"] - 20) < 0.5, 30, "20 rev/s")
+    spin_to(sock, 20)
     tvsctl(sock, "scan", "start")
-    wait_for(lambda: status(sock)["points"]["total"] >= 10, 20, "points")
+    wait_for(lambda: status(sock)["points"]["total"] >= 10, 20, "points", sock)
     before = status(sock)["points"]
     assert before["no_imu"] == 0  # IMU ok: compensated points, none flagged
     assert "result" in rpc(sock, "inject_fault", device="imu", fault="loss")
     wait_for(lambda: status(sock)["imu"]["state"] in ("lost", "degraded"), 10, "the IMU loss")
-    wait_for(lambda: status(sock)["points"]["no_imu"] >= 10, 20, "flagged points")
+    wait_for(lambda: status(sock)["points"]["no_imu"] >= 10, 20, "flagged points", sock)
     s = status(sock)
     assert s["state"] == "scanning" and any(f["cause"].startswith("IMU") for f in s["faults"])
     # calibration needs the aperture at rest: refused while it turns, with the fix

@@ -64,7 +64,10 @@ async def spin(
     """Open the link, set the duty, run the plant to sim_s (and, if asked, until the clock sync
     has its samples) and wait for the last frame. Timeouts allow a loaded host to run the plant
     at a fraction of SPEED."""
-    link = McuLink(LinkSettings(port=plant.mcu.port), on_state=states.append, on_pulse=pulses.append)
+    # link_timeout 10 s: a stall of this process (it paces the plant) must not read as a link loss,
+    # which would break the chain of stamps that `exact` and the 1 ms steps below check
+    settings = LinkSettings(port=plant.mcu.port, link_timeout_s=10.0)
+    link = McuLink(settings, on_state=states.append, on_pulse=pulses.append)
     async with link:
         # 2 s of MCU time: a heartbeat late on a loaded host must not trip the watchdog
         assert link.send_config(watchdog_ms=2000, state_div=10, max_on_ms=0)
@@ -161,6 +164,8 @@ def test_beta_from_the_pulse_stamps_matches_the_target() -> None:
             f"β = {plant.beta:.6f} rad: {checked} revolutions, "
             f"|error| ≤ {worst:.2e} rad (tolerance {worst_tol:.2e})"
         )
-        # and ClockSync maps the manual clock onto the wall clock it was paced on (to a few ms)
+        # and ClockSync maps the manual clock onto the wall clock it was paced on: to a few ms of
+        # round trip, plus however far the core fell behind the pacing line (a loaded host)
         p = plant.pacing
-        assert clock.to_host(round(plant.t * HZ)) == pytest.approx(p.truth_host(plant.t, SPEED), abs=5e-3)
+        tol = 5e-3 + p.lag_max_s / SPEED
+        assert clock.to_host(round(plant.t * HZ)) == pytest.approx(p.truth_host(plant.t, SPEED), abs=tol)

@@ -50,7 +50,9 @@ def test_state_ticks_encoder_pulses_and_pwm(vmcu: vm.VirtualMcu) -> None:
     pulses: list[PulseEvent] = []
 
     async def main() -> None:
-        settings = LinkSettings(port=vmcu.port, heartbeat_period_s=0.005)
+        # (a stall of this process, which pumps the virtual MCU, must not read as a link loss:
+        # the stamps' chain would break and `exact` below with it)
+        settings = LinkSettings(port=vmcu.port, heartbeat_period_s=0.005, link_timeout_s=10.0)
         async with McuLink(settings, on_state=states.append, on_pulse=pulses.append) as link:
             # the motor turns 12 rev in 0.3 s: 49152 counts, past the i16 wrap
             t0 = time.monotonic()
@@ -60,14 +62,13 @@ def test_state_ticks_encoder_pulses_and_pwm(vmcu: vm.VirtualMcu) -> None:
             vmcu.set_shaft(12 * math.tau)
             await asyncio.sleep(0.05)
             assert link.clock is not None and link.clock.ready
-            t_pulse = time.monotonic()
-            vmcu.pulse(vm.PULSE_OPTICAL)
+            t_pulse = time.monotonic()  # the edge latched at this very instant, not at the call's
+            vmcu.pulse(vm.PULSE_OPTICAL, t_s=t_pulse - vmcu.power_on_monotonic)
             while not any(p.channel == vm.PULSE_OPTICAL for p in pulses):
                 await asyncio.sleep(0.001)
             # armed by the heartbeat, the firmware takes the duty
             assert link.send_pwm(0.5)
-            await asyncio.sleep(0.02)
-            assert vmcu.pwm_duty == pytest.approx(0.5, abs=1 / 32767)
+            await wait(lambda: abs(vmcu.pwm_duty - 0.5) <= 1 / 32767, 2.0)
             st = link.stats()
             assert st.lost_frames == st.crc_errors == st.lost_events == 0
 
@@ -139,8 +140,7 @@ def test_watchdog_cuts_outputs_when_heartbeats_stop(vmcu: vm.VirtualMcu) -> None
             link.send_config(watchdog_ms=100, state_div=10, max_on_ms=0)
             await asyncio.sleep(0.02)
             assert link.send_pwm(0.4)
-            await asyncio.sleep(0.02)
-            assert vmcu.pwm_duty == pytest.approx(0.4, abs=1 / 32767)
+            await wait(lambda: abs(vmcu.pwm_duty - 0.4) <= 1 / 32767, 2.0)
             # (a loaded host can stall the virtual MCU's pump past the watchdog before this:
             # only a fault that comes after the heartbeat stops counts)
             before = len(faults)
@@ -178,7 +178,13 @@ def test_cli_identify_ping_stats(monkeypatch: pytest.MonkeyPatch, capsys: pytest
     assert run_cli(["mcu", "identify", "--sil", "--json"], monkeypatch) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["match"] is True and out["table_hash"] == f"0x{load_spec().table_hash:08X}"
-    assert run_cli(["mcu", "ping", "--sil", "--count", "20", "--interval", "0", "--json"], monkeypatch) == 0
+    assert (
+        run_cli(
+            ["mcu", "ping", "--sil", "--count", "20", "--interval", "0", "--timeout", "5", "--json"],
+            monkeypatch,
+        )
+        == 0
+    )
     out = json.loads(capsys.readouterr().out)
     assert out["answered"] == 20 and 0 < out["rtt_us"]["min"] <= out["rtt_us"]["max"]
     assert run_cli(["mcu", "stats", "--sil", "--seconds", "0.1"], monkeypatch) == 0
@@ -202,3 +208,6 @@ def test_cli_user_mistakes_are_one_line(
     assert info.value.code == 2
     assert "one of the arguments --port --sil is required" in capsys.readouterr().err
     assert run_cli(["mcu", "ping", "--port", "/dev/null", "--count", "0"], monkeypatch) == 2
+    assert "--count must be at least 1" in capsys.readouterr().err
+    assert run_cli(["mcu", "ping", "--port", "/dev/null", "--timeout", "0"], monkeypatch) == 2
+    assert "--timeout must be more than 0 s, got 0.0" in capsys.readouterr().err

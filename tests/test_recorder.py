@@ -192,8 +192,9 @@ def test_a_stalled_disk_drops_and_counts_but_never_blocks_the_producer(tmp_path)
             accepted += loop.append(batch)
             worst = max(worst, time.perf_counter() - t0)
         stats = rec.stats()["loop"]
-    # A blocking append would wait ≥ 300 ms for the disk; 20 ms leaves room for a loaded machine.
-    assert worst < 0.02, f"append blocked for {worst * 1000:.1f} ms"
+    # A blocking append would wait ≥ 300 ms for the disk; half that separates the two cases with
+    # room for the shared machine's stalls (tens of ms at times), which 20 ms did not leave.
+    assert worst < 0.15, f"append blocked for {worst * 1000:.1f} ms"
     assert stats.dropped_batches == 200 - accepted > 0 and stats.dropped_rows == 100 * (200 - accepted)
     got = open_recording(tmp_path / "rec")
     assert len(got.channels["loop"]) == 100 * accepted

@@ -389,7 +389,9 @@ def test_slow_subscriber_loses_notifications_but_never_blocks_the_publisher(sock
                 if _ % 100 == 0:
                     await asyncio.sleep(0)  # let the sender run and fill the socket
             assert server.stats["dropped_notifications"] > 1000
-            assert worst < 0.05, f"publish took {worst * 1e3:.1f} ms"
+            # A publish that waited for the socket would wait forever (nobody reads); one that only
+            # queues takes ~0.1 ms. 0.25 s lies between, above a shared machine's stalls.
+            assert worst < 0.25, f"publish took {worst * 1e3:.1f} ms"
             fast = await Conn.open(sock_path)
             t0 = time.perf_counter()
             assert (await fast.call("status"))["result"]["state"] == "idle"

@@ -1,7 +1,7 @@
 """tvsctl mcu — talk to the MCU directly: who it is, how fast it answers, what it counted.
 
   tvsctl mcu identify [--port PATH | --sil] [--baud N] [--json]
-  tvsctl mcu ping     [--port PATH | --sil] [--baud N] [--count N] [--interval S] [--json]
+  tvsctl mcu ping     [--port PATH | --sil] [--baud N] [--count N] [--interval S] [--timeout S] [--json]
   tvsctl mcu stats    [--port PATH | --sil] [--baud N] [--seconds S] [--json]
 
 --sil runs the firmware core on the host behind a pseudo-terminal (tvsd.sim.virtual_mcu), so the
@@ -102,6 +102,8 @@ def cmd_ping(args: argparse.Namespace) -> int:
         raise UsageError(f"--count must be at least 1, got {args.count}")
     if args.interval < 0:
         raise UsageError(f"--interval must not be negative, got {args.interval}")
+    if not args.timeout > 0:
+        raise UsageError(f"--timeout must be more than 0 s, got {args.timeout}")
 
     async def body(port: str) -> int:
         rtts: list[float] = []
@@ -109,7 +111,7 @@ def cmd_ping(args: argparse.Namespace) -> int:
         async with _link(args, port, heartbeat=False) as link:
             for _ in range(args.count):
                 try:
-                    rtts.append(await link.ping(timeout_s=0.2))
+                    rtts.append(await link.ping(timeout_s=args.timeout))
                 except DeviceError:
                     lost += 1
                 await asyncio.sleep(args.interval)
@@ -173,6 +175,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     _common(ping)
     ping.add_argument("--count", type=int, default=100, help="heartbeats (default %(default)s)")
     ping.add_argument("--interval", type=float, default=0.01, help="s between (%(default)s)")
+    ping.add_argument("--timeout", type=float, default=0.2, help="s to wait for each answer (%(default)s)")
     ping.set_defaults(func=cmd_ping)
     stats = sub.add_parser("stats", help="link counters of both sides")
     _common(stats)

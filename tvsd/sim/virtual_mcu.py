@@ -168,6 +168,11 @@ class VirtualMcu:
         with self._lock:
             return int(self._lib.vmcu_now()) / self.clock_hz
 
+    @property
+    def power_on_monotonic(self) -> float:
+        """time.monotonic() at power-on: with the wall clock, core time = monotonic − this."""
+        return self._t0
+
     def _wall_s(self) -> float:
         return time.monotonic() - self._t0
 
