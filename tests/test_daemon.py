@@ -60,7 +60,7 @@ def wait_for(predicate, timeout: float, what: str, sock: Path | None = None) -> 
         if predicate():
             return
         if sock is not None and (s := status(sock))["state"] == "fault":
-            raise AssertionError(f"safe state while waiting for {what}: {[f['cause'] for f in s['faults']]}")
+            raise AssertionError(f"safe state while waiting for {what}: {s['faults']}, loop {s['loop']}")
         time.sleep(0.2)
     raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
 
@@ -73,17 +73,16 @@ def spin_to(sock: Path, rps: float, timeout: float = 30.0, tol: float = 0.5) -> 
 @pytest.fixture
 def daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path, Path]]:
     sock, data = tmp_path / "run" / "tvsd.sock", tmp_path / "data"
-    # as `make run` runs it: the control thread asks for SCHED_FIFO (granted as root, as in CI)
-    argv = ["--sil", "--realtime", "--socket", str(sock), "--data-dir", str(data)]
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tvsd.daemon.main", *argv],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    argv = ["--sil", "--socket", str(sock), "--data-dir", str(data)]
+    # The daemon's log goes to a file: a pipe nobody reads would block its logging once full.
+    log = tmp_path / "tvsd.log"
+    with log.open("w") as log_file:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "tvsd.daemon.main", *argv], stdout=log_file, stderr=log_file, text=True
+        )
     try:
         wait_for(lambda: sock.exists() or proc.poll() is not None, START_S, "the daemon's socket")
-        assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+        assert proc.poll() is None, log.read_text()
         # the socket answers from the start; the devices come up behind it ("starting")
         wait_for(lambda: status(sock)["state"] != "starting", START_S, "the devices to come up")
         yield proc, sock, data
@@ -91,6 +90,7 @@ def daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path, Path]]
         if proc.poll() is None:
             proc.kill()
         proc.wait(10)
+        print("tvsd's log (its tail):\n" + "".join(log.read_text().splitlines(keepends=True)[-40:]))
 
 
 def test_status_has_the_promised_shape_and_the_socket_is_0660(daemon):
@@ -98,7 +98,7 @@ def test_status_has_the_promised_shape_and_the_socket_is_0660(daemon):
     s = json.loads(tvsctl(sock, "status", "--json").stdout)
     assert {"state", "rps", "loop", "imu", "link", "faults"} <= s.keys()
     assert {"rate_hz", "missed_ticks", "jitter_p99_us"} <= s["loop"].keys()
-    assert s["state"] == "idle" and s["faults"] == []
+    assert s["state"] == "idle" and s["faults"] == [], s
     assert oct(sock.stat().st_mode & 0o777) == "0o660"
 
 
@@ -133,7 +133,7 @@ def test_spin_scan_points_record_export_and_orderly_stop(daemon, tmp_path):
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(20) == 0
     assert not sock.exists()
-    assert "stopped" in (proc.stderr.read() if proc.stderr else "")
+    assert "stopped" in (tmp_path / "tvsd.log").read_text()
 
 
 def test_bad_requests_get_errors_and_the_daemon_stays_up(daemon):
@@ -193,8 +193,7 @@ def test_mcu_link_loss_holds_pwm_0_within_50_ms_of_the_last_frame(daemon):
     stale = [f for f in s["faults"] if f["cause"].startswith("MCU state frames stopped")]
     assert len(stale) == 1 and "safe state" in stale[0]["action"]
     # The control thread checks every 0.1 ms tick against the 40 ms limit: the bound is
-    # 50 ms after the last frame, which leaves 10 ms for a late wake-up of the control thread
-    # (SCHED_FIFO, as the daemon runs: its lateness is ~50 µs p99 here, README "Benchmarks").
+    # 50 ms after the last frame, which leaves 10 ms for a late wake-up of the control thread.
     assert 40.0 <= stale[0]["safe_after_ms"] <= 50.0
     wait_for(lambda: any("link lost" in f["cause"] for f in status(sock)["faults"]), 5, "the link's report")
     assert status(sock)["link"]["state"] == "lost"
