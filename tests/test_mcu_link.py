@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import asyncio
+import logging
+import math
 import os
 import threading
 import time
@@ -387,6 +389,35 @@ def test_refusal_names_the_frame_by_its_seq() -> None:
             assert link.stats().nacks == 1
 
     run(main)
+
+
+def test_a_burst_of_refusals_is_one_log_line_with_its_count(caplog: pytest.LogCaptureFixture) -> None:
+    """While the outputs are disarmed every pwm_set (1 kHz) is refused: each is counted and kept,
+    the log gets the first, then the count in the next report a second later."""
+
+    async def main() -> None:
+        async with pty_link() as (link, fake):
+            for _ in range(30):
+                link.send_pwm(0.0)
+            await wait_for(lambda: len(fake.received) == 30)
+            for f in fake.received:
+                fake.send("ack", f.seq, 2)
+            await wait_for(lambda: link.stats().nacks == 30)
+            lines = [r.getMessage() for r in caplog.records if "MCU refused" in r.getMessage()]
+            assert lines == [
+                "MCU refused pwm_set(0,): outputs are refused until a heartbeat arms the watchdog"
+            ]
+            assert len(link.refusals) == 30
+            link._refusal_log[("pwm_set", 2)] = (-math.inf, 29)  # as if the second had passed
+            link.send_pwm(0.0)
+            await wait_for(lambda: len(fake.received) == 31)
+            fake.send("ack", fake.received[-1].seq, 2)
+            await wait_for(lambda: link.stats().nacks == 31)
+            lines = [r.getMessage() for r in caplog.records if "MCU refused" in r.getMessage()]
+            assert len(lines) == 2 and lines[1].endswith("(29 more like it since the last report)")
+
+    with caplog.at_level(logging.WARNING, logger="tvsd.hw.mcu.link"):
+        run(main)
 
 
 def test_state_ticks_reanchored_by_the_next_heartbeat() -> None:

@@ -76,6 +76,9 @@ FLASH_HINT = (
 )
 
 
+REFUSAL_LOG_INTERVAL_S = 1.0  # the same refusal is logged at most this often (with a count)
+
+
 @dataclass(frozen=True)
 class LinkSettings:
     port: str
@@ -198,6 +201,7 @@ class McuLink:
         self.on_pulse, self.on_state, self.on_fault = on_pulse, on_state, on_fault
         self.on_stepper, self.on_link, self.on_refused = on_stepper, on_link, on_refused
         self.refusals: deque[Refusal] = deque(maxlen=64)
+        self._refusal_log: dict[tuple[str, int], tuple[float, int]] = {}  # → (logged at, repeats since)
         self.identity: Identify | None = None
         self.clock: ClockSync | None = None
         self.steppers: dict[int, StepperState] = {}
@@ -595,7 +599,16 @@ class McuLink:
         name, values = self._sent[msg.seq]
         ref = Refusal(name or "?", values, msg.status, ack_meaning(msg.status), now)
         self.refusals.append(ref)
-        log.warning("MCU refused %s%s: %s", ref.name, ref.values, ref.reason)
+        # pwm_set goes with every state frame (1 kHz): while the outputs are disarmed each one is
+        # refused. One line per kind per second, with the count, not a line per frame.
+        key = (ref.name, msg.status)
+        logged_at, repeats = self._refusal_log.get(key, (-math.inf, 0))
+        if now - logged_at >= REFUSAL_LOG_INTERVAL_S:
+            more = f" ({repeats} more like it since the last report)" if repeats else ""
+            log.warning("MCU refused %s%s: %s%s", ref.name, ref.values, ref.reason, more)
+            self._refusal_log[key] = (now, 0)
+        else:
+            self._refusal_log[key] = (logged_at, repeats + 1)
         if self.on_refused is not None:
             self.on_refused(ref)
 
