@@ -49,7 +49,6 @@ from tvsd.daemon.notify import Notifier
 from tvsd.daemon.rpc import RpcError, RpcServer
 from tvsd.daemon.session_recording import SessionRecording
 from tvsd.errors import TvsdError
-from tvsd.hw.mcu.clock import warm_up as warm_up_clock_fit
 from tvsd.hw.mcu.link import FaultEvent, PulseEvent
 from tvsd.hw.mpu6050 import DLPF_DELAY_S, SA_AXES
 from tvsd.scan.compensation import DriveModel
@@ -144,7 +143,6 @@ class Daemon:
             # the IMU reader and the event loop past the 40 ms link timeout and 50 ms watchdog.
             gc.collect()
             gc.freeze()
-            warm_up_clock_fit()  # its first call faults in LAPACK's buffers: not after the link is up
             await self.drive.start(*(math.radians(v) for v in self.aim_deg))
             await self._start_optional()
             tasks.append(asyncio.create_task(self._initial_aim()))

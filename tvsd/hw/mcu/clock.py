@@ -132,7 +132,7 @@ def warm_up(clock_hz: float = 16e6) -> None:
     """Run one fit on made-up round trips. The first least-squares call sets up LAPACK's work
     buffers; under mlockall every one of their pages is faulted in then: 11 ms alone, 64 ms
     measured in the SIL daemon at the first heartbeat ack, which tripped the firmware's 50 ms
-    watchdog. A daemon calls this before its link goes live."""
+    watchdog. McuLink.open() calls this, before the link reads or sends anything."""
     sync = ClockSync(clock_hz)
     for k in range(3):
         sync.add(k * 0.01, k * 0.01 + 1e-4, round(k * 0.01 * clock_hz))

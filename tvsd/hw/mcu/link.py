@@ -38,6 +38,7 @@ import serial
 
 from tvsd.errors import ConfigError, DeviceError, ProtocolError, UsageError
 from tvsd.hw.mcu.clock import ClockSettings, ClockSync
+from tvsd.hw.mcu.clock import warm_up as warm_up_clock_fit
 from tvsd.hw.mcu.framing import FrameDecoder, encode_frame
 from tvsd.hw.mcu.messages import (
     Ack,
@@ -247,6 +248,7 @@ class McuLink:
     # --- life cycle ---------------------------------------------------------------------------
 
     async def open(self) -> None:
+        warm_up_clock_fit()  # while no heartbeat is due: the first fit costs tens of ms
         self._loop = asyncio.get_running_loop()
         self._serial = open_serial(self.settings.port, self.settings.baud)
         self._fd = self._serial.fileno()
