@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
+from tvsd.causes import parse_effect, parse_effects
 from tvsd.config import VibrationConfig, load_config
 from tvsd.errors import UsageError
-from tvsd.model.effects import parse_effect, parse_effects
 from tvsd.model.lugre import steady_friction
 from tvsd.sim import metrics, runs
 

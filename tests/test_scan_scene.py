@@ -11,9 +11,9 @@ import math
 import numpy as np
 import pytest
 
+from tvsd.causes import parse_effects
 from tvsd.config import load_config
 from tvsd.errors import UsageError
-from tvsd.model.effects import parse_effects
 from tvsd.scan import report
 from tvsd.scan.geometry import aim, doe_b_target
 from tvsd.scan.pipeline import process

@@ -274,7 +274,7 @@ def load_sil_profile(path: Path) -> SilConfig:
 
 
 def _check_effects(sil: SilConfig, path: Path, data: dict[str, object]) -> None:
-    from tvsd.model.effects import parse_effects  # the effects library owns the syntax
+    from tvsd.causes import parse_effects  # the vocabulary owns the syntax
 
     try:
         parse_effects(sil.effects)

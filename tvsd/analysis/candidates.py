@@ -16,6 +16,7 @@ import numpy as np
 
 from tvsd.analysis.baseline import speed_error
 from tvsd.analysis.inverse import Builder, Columns, Fit, Signals, scan
+from tvsd.causes import CATALOGUE, Effect
 from tvsd.model import effects as E
 
 MAX_COGGING_ORDER = 24
@@ -34,11 +35,11 @@ class Candidate:
 
     def effect_array(self) -> np.ndarray:
         """The effects-library array for simulating this extension."""
-        keys = {p.name for p in E.CATALOGUE[self.cause].params} if self.cause in E.CATALOGUE else set()
+        keys = {p.name for p in CATALOGUE[self.cause].params} if self.cause in CATALOGUE else set()
         params = {k: v for k, v in self.effect.items() if k in keys}
         if self.cause == "friction_asymmetry":
             return E.neutral()  # simulated through the direction-split friction instead
-        return E.pack([E.Effect(self.cause, params)])
+        return E.pack([Effect(self.cause, params)])
 
 
 def _plain(cols: Columns) -> np.ndarray:

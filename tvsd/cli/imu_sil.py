@@ -93,8 +93,8 @@ def plant_motion(args: argparse.Namespace, axis: int) -> MotionSource:
     imbalance torque J·α unless --effect names the effects. The vibration is the OU reading of
     eq. (12) with std --vibration (MODEL-NOTES §4): what an IMU measures is band-limited; the
     literal SDE's acceleration is white to 5 kHz and would alias into the 1 kHz samples."""
+    from tvsd.causes import parse_effects
     from tvsd.config import VibrationConfig, load_config
-    from tvsd.model.effects import parse_effects
     from tvsd.sim import runs
 
     cfg = load_config()

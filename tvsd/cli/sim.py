@@ -7,10 +7,10 @@ import dataclasses
 import math
 from pathlib import Path
 
+from tvsd.causes import Effect, catalogue_help, parse_effects
 from tvsd.cli.output import print_json, print_pairs, print_table, warn
 from tvsd.config import Config, Gains, load_config
 from tvsd.errors import EXIT_OK, UsageError
-from tvsd.model.effects import Effect, catalogue_help, parse_effects
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

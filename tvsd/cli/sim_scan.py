@@ -59,7 +59,7 @@ def _floats(text: str) -> tuple[float, ...]:
 
 
 def handle(args: argparse.Namespace) -> int:
-    from tvsd.model.effects import parse_effects
+    from tvsd.causes import parse_effects
     from tvsd.scan import points, report
     from tvsd.scan.settings import ScanSettings
     from tvsd.sim import scene

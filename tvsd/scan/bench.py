@@ -28,8 +28,8 @@ def bench_triangulation(n: int = 1_000_000, repeats: int = 3) -> dict[str, float
 def bench_pipeline(seconds: float = 20.0, repeats: int = 3) -> dict[str, float]:
     """Points/s of the whole batch pipeline (pulse cleaning, compensated β, σ from the measured
     spectrum, triangulation) on a SIL recording at 25 rev/s, best of `repeats`."""
+    from tvsd.causes import parse_effects
     from tvsd.config import load_config
-    from tvsd.model.effects import parse_effects
     from tvsd.scan.geometry import aim, doe_b_target
     from tvsd.scan.pipeline import process
     from tvsd.scan.pulses import clean
@@ -59,8 +59,8 @@ def bench_latency(seconds: float = 3.0, rps: float = 20.0) -> dict[str, float]:
     of the pulse that completes the point (wall time, p50 and p99) separately: the first is the
     method's, the second this machine's.
     """
+    from tvsd.causes import parse_effects
     from tvsd.config import load_config
-    from tvsd.model.effects import parse_effects
     from tvsd.scan.geometry import aim, doe_b_target
     from tvsd.scan.settings import ScanSettings
     from tvsd.scan.stream import PointStream

@@ -14,9 +14,9 @@ import time
 import numpy as np
 from numba import njit
 
+from tvsd.causes import parse_effects
 from tvsd.config import load_config
 from tvsd.control.law import robust_law
-from tvsd.model.effects import parse_effects
 from tvsd.sim import runs
 
 

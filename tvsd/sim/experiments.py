@@ -11,10 +11,10 @@ from typing import Any
 
 import numpy as np
 
+from tvsd.causes import Effect
 from tvsd.config import Config, Gains
 from tvsd.control.conditions import check_gains, warnings
 from tvsd.errors import UsageError
-from tvsd.model.effects import Effect
 from tvsd.sim import metrics, runs
 
 # A spin is judged once the reference has reached its speed and the loop has settled: the default

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from tvsd.causes import Effect
 from tvsd.config import Config, MeasurementConfig
 from tvsd.errors import UsageError
-from tvsd.model.effects import Effect
 from tvsd.recording import write
 from tvsd.sim import runs
 

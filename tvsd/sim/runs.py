@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tvsd.causes import Effect, parse_effects
 from tvsd.config import Config, Gains, VibrationConfig
 from tvsd.model import effects as E
 from tvsd.model import params as P
@@ -55,7 +56,7 @@ class Setup:
     seed: int
     substeps: int = 1  # plant steps per controller period (finer integration, same loop)
     scan_feedforward: bool = True
-    effect_list: tuple[E.Effect, ...] = field(default_factory=tuple)
+    effect_list: tuple[Effect, ...] = field(default_factory=tuple)
     vibration_model: str = "ou"
 
     @classmethod
@@ -63,7 +64,7 @@ class Setup:
         cls,
         cfg: Config,
         *,
-        effects: Iterable[E.Effect] | None = None,
+        effects: Iterable[Effect] | None = None,
         gains: Gains | None = None,
         ku: float | None = None,
         vibration: VibrationConfig | None = None,
@@ -71,7 +72,7 @@ class Setup:
         substeps: int = 1,
     ) -> Setup:
         sil = cfg.sil_or_default
-        effect_list = tuple(effects) if effects is not None else E.parse_effects(sil.effects)
+        effect_list = tuple(effects) if effects is not None else parse_effects(sil.effects)
         vib = vibration if vibration is not None else sil.vibration
         return cls(
             plant=P.pack_plant(cfg.plant, ku=ku),

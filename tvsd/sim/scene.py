@@ -19,9 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from tvsd.causes import Effect
 from tvsd.config import Config, VibrationConfig
 from tvsd.errors import UsageError
-from tvsd.model.effects import Effect
 from tvsd.scan.compensation import DriveModel, KnownAccel
 from tvsd.scan.encoder import EncoderLog
 from tvsd.scan.geometry import Aim, aim, doe_b_target
