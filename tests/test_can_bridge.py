@@ -21,8 +21,9 @@ from can.interfaces.virtual import VirtualBus
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tvsd.daemon.can_bridge import CanBridge, CanSettings
-from tvsd.daemon.can_frames import (
+from tvsd.errors import ConfigError
+from tvsd.hw.can.bridge import CanBridge, CanSettings
+from tvsd.hw.can.frames import (
     FLAG_SATURATED,
     SIGMA_LSB_M,
     SIGMA_MAX,
@@ -45,7 +46,6 @@ from tvsd.daemon.can_frames import (
     encode_status,
     point_part,
 )
-from tvsd.errors import ConfigError
 from tvsd.scan.points import FLAG_COMPENSATED, FLAG_VIBRATION
 from tvsd.schema import Where, build, load_yaml
 
@@ -426,7 +426,7 @@ def test_slow_bus_drops_points_and_never_stalls_the_loop() -> None:
 
 
 def test_slow_handler_gets_a_timeout_ack(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr("tvsd.daemon.can_bridge.HANDLER_TIMEOUT_S", 0.1)
+    monkeypatch.setattr("tvsd.hw.can.bridge.HANDLER_TIMEOUT_S", 0.1)
 
     async def handler(cmd: Command) -> Ack:
         await asyncio.sleep(5)

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from tvsd.daemon.can_settings import CanSettings
 from tvsd.errors import ConfigError, UsageError
+from tvsd.hw.can.settings import CanSettings
 from tvsd.scan.settings import ScanSettings
 from tvsd.schema import Where, build, load_yaml, option
 

@@ -41,14 +41,14 @@ from tvsd.config import Config
 from tvsd.control import latency as L
 from tvsd.control import runner as RN
 from tvsd.daemon.api import Api
-from tvsd.daemon.can_bridge import CanBridge
-from tvsd.daemon.can_frames import Ack, Command, CommandCode, Reason
 from tvsd.daemon.drive_link import HOME_TIMEOUT_S, DriveLink
 from tvsd.daemon.imu_feed import ImuFeed
 from tvsd.daemon.notify import Notifier
 from tvsd.daemon.rpc import RpcError, RpcServer
 from tvsd.daemon.session_recording import SessionRecording
 from tvsd.errors import TvsdError
+from tvsd.hw.can.bridge import CanBridge
+from tvsd.hw.can.frames import Ack, Command, CommandCode, Reason
 from tvsd.hw.mcu.link import FaultEvent, PulseEvent
 from tvsd.hw.mpu6050 import DLPF_DELAY_S, SA_AXES
 from tvsd.scan.compensation import DriveModel

@@ -3,7 +3,7 @@
 Classic CAN, 8-byte payloads, 11-bit ids at fixed offsets from a configurable base id (default
 0x580). Multi-byte fields are little-endian (Intel order, what DBC files and ``struct '<'`` use);
 the point frames are bit-packed into one little-endian 64-bit word (bit 0 = LSB of byte 0). The
-full table with examples is ``tvsd/daemon/CAN.md``; the code here is the reference.
+full table with examples is ``tvsd/hw/can/CAN.md``; the code here is the reference.
 
     id        dir          frame    payload (8 bytes)
     base+0    robot→tvsd   COMMAND  code u8 | cmd_id u8 | args (SPEED: rps×100 u16; AIM: φ, γ ×100 ° i16)

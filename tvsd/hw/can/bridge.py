@@ -1,7 +1,7 @@
 """CAN bridge to a robot (python-can): status at a fixed rate, points as they come, commands in.
 
-Off by default (`CanSettings.enabled`). The frame layout is in `tvsd.daemon.can_frames` and the
-table for the robot's side in ``tvsd/daemon/CAN.md``; in short, from the base id B (0x580):
+Off by default (`CanSettings.enabled`). The frame layout is in `tvsd.hw.can.frames` and the
+table for the robot's side in ``tvsd/hw/can/CAN.md``; in short, from the base id B (0x580):
 B+0 COMMAND (robot→tvsd), B+1 ACK, B+2 STATUS (every 1/status_hz s), B+3 POINT (two frames a point).
 
 Never blocks the event loop (STYLE.md §7):
@@ -31,7 +31,8 @@ from typing import Any
 
 import can
 
-from tvsd.daemon.can_frames import (
+from tvsd.errors import DeviceError
+from tvsd.hw.can.frames import (
     OFF_ACK,
     OFF_COMMAND,
     OFF_POINT,
@@ -47,8 +48,7 @@ from tvsd.daemon.can_frames import (
     encode_status,
     state_of,
 )
-from tvsd.daemon.can_settings import CanSettings
-from tvsd.errors import DeviceError
+from tvsd.hw.can.settings import CanSettings
 
 __all__ = ["Ack", "CanBridge", "CanSettings", "CanStats", "Command", "CommandCode", "Reason"]
 
