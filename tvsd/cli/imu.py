@@ -29,6 +29,7 @@ import numpy as np
 from tvsd.cli.imu_sil import add_sil_arguments, sil_bench
 from tvsd.errors import EXIT_OK, DataFileError, DeviceError, UsageError
 from tvsd.hw import imu_calibration as cal
+from tvsd.hw.i2c_bus import open_bus
 from tvsd.hw.imu_clock import Clock, ManualClock, MonotonicClock
 from tvsd.hw.imu_reader import ImuReader, SensorReader
 from tvsd.hw.mpu6050 import DLPF_DELAY_S, SA_AXES, ImuSettings, Mpu6050, SMBusLike, angular_acceleration
@@ -46,20 +47,6 @@ class SensorRecord:
     gyro: np.ndarray
     rate_hz: float
     status: dict[str, object]
-
-
-def open_bus(settings: ImuSettings) -> SMBusLike:
-    """The real bus, or DeviceError saying how to get one."""
-    try:
-        import smbus2
-
-        return smbus2.SMBus(settings.bus)
-    except (OSError, ImportError) as exc:
-        raise DeviceError(
-            f"cannot open /dev/i2c-{settings.bus} ({exc}): enable I2C (raspi-config, or "
-            "dtparam=i2c_arm=on in config.txt), check imu.bus, and that this user is in group "
-            "i2c; or use --sil for the simulated sensors"
-        ) from exc
 
 
 def run_capture(

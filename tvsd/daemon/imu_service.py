@@ -45,6 +45,7 @@ import numpy as np
 from tvsd.errors import DataFileError, DeviceError, UsageError
 from tvsd.hw import imu_calibration as cal
 from tvsd.hw import mpu6050 as reg
+from tvsd.hw.i2c_bus import open_bus
 from tvsd.hw.imu_clock import Clock, MonotonicClock
 from tvsd.hw.imu_reader import ImuBatch, ImuReader, SensorReader
 from tvsd.hw.mpu6050 import ImuSettings, Mpu6050, SMBusLike
@@ -156,8 +157,6 @@ class ImuService:
         if self.backend == "hardware":
             if self._open_bus is not None:
                 return self._open_bus(self.settings)
-            from tvsd.cli.imu import open_bus  # the one opener of the real bus, with its advice
-
             return open_bus(self.settings)
         from tvsd.sim.imu_motion import PlantClock, SyntheticParams, plant_pair, synthetic_pair
         from tvsd.sim.mpu6050 import sil_pair
