@@ -1,4 +1,4 @@
-"""tvsd.cli.client and the daemon commands of tvsctl, against a fake daemon on a real socket."""
+"""tvsd.rpc.client and the daemon commands of tvsctl, against a fake daemon on a real socket."""
 
 from __future__ import annotations
 
@@ -12,7 +12,9 @@ from typing import Any
 import pytest
 
 from tvsd.cli import main as cli
-from tvsd.cli.client import (
+from tvsd.daemon.rpc import DEVICE_ERROR, STATE_ERROR, RpcError, ThreadedRpcServer
+from tvsd.errors import DaemonUnavailable
+from tvsd.rpc.client import (
     DEFAULT_SOCKET,
     RemoteDeviceError,
     RemoteError,
@@ -20,8 +22,6 @@ from tvsd.cli.client import (
     RpcClient,
     socket_path,
 )
-from tvsd.daemon.rpc import DEVICE_ERROR, STATE_ERROR, RpcError, ThreadedRpcServer
-from tvsd.errors import DaemonUnavailable
 
 STATUS = {"state": "scanning", "rps": 25.0, "gains": {"Gp": 40.0, "Gd": 1.2}, "faults": []}
 

@@ -14,9 +14,9 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from tvsd.cli.client import DEFAULT_SOCKET, ENV_SOCKET, RpcClient, socket_path
 from tvsd.cli.output import print_json, print_pairs, print_table
 from tvsd.errors import EXIT_OK, UsageError
+from tvsd.rpc.client import DEFAULT_SOCKET, ENV_SOCKET, RpcClient, socket_path
 
 GAIN_NAMES = ("Gp", "Gd", "Gr", "G0")
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tvsd.cli.client import RpcClient
+from tvsd.rpc.client import RpcClient
 
 
 def bench_point_latency(points: int = 200, rps: float = 25.0) -> dict[str, float]:

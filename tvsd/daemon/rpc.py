@@ -2,7 +2,7 @@
 
 This module owns the transport: the socket file (stale ones replaced, a running daemon refused),
 the connections and their framing, and the subscriptions. What one message must look like — the
-request checks, method lookup, params binding and the error codes — is `tvsd.daemon.rpc_protocol`
+request checks, method lookup, params binding and the error codes — is `tvsd.rpc.protocol`
 (its names are re-exported here). The daemon hands `RpcServer` a table of ``async def`` methods.
 
 Built-in methods: ``subscribe(topic)`` and ``unsubscribe(topic)``. `RpcServer.publish` pushes
@@ -29,7 +29,8 @@ from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any
 
-from tvsd.daemon.rpc_protocol import (
+from tvsd.errors import EXIT_FAILURE, EXIT_USAGE, TvsdError
+from tvsd.rpc.protocol import (
     DEVICE_ERROR,
     INTERNAL_ERROR,
     INVALID_PARAMS,
@@ -48,7 +49,6 @@ from tvsd.daemon.rpc_protocol import (
     reply_to_error,
     result_reply,
 )
-from tvsd.errors import EXIT_FAILURE, EXIT_USAGE, TvsdError
 
 __all__ = [
     "DEVICE_ERROR",
@@ -363,7 +363,7 @@ def bench_rpc(n: int = 2000) -> dict[str, float]:
     The server runs on an event loop in a thread (as in the daemon); the blocking client calls from
     this thread. ``python -c "from tvsd.daemon.rpc import bench_rpc; print(bench_rpc())"``
     """
-    from tvsd.cli.client import RpcClient
+    from tvsd.rpc.client import RpcClient
 
     async def status() -> dict[str, object]:
         return {

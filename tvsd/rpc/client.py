@@ -1,4 +1,4 @@
-"""Blocking JSON-RPC 2.0 client of tvsd's Unix socket, for tvsctl (protocol: tvsd/daemon/rpc_protocol.py).
+"""Blocking JSON-RPC 2.0 client of tvsd's Unix socket, for tvsctl (protocol: tvsd/rpc/protocol.py).
 
 Error replies become TvsdError subclasses carrying the daemon's message, so tvsctl prints one line
 and exits with the documented status: invalid params → 2, device error → 3, anything else → 1.
@@ -15,13 +15,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from tvsd.errors import DaemonUnavailable, DeviceError, TvsdError, UsageError
+from tvsd.rpc.protocol import DEVICE_ERROR, INVALID_PARAMS
 
 DEFAULT_SOCKET = Path("/run/tvsd/tvsd.sock")
 ENV_SOCKET = "TVSD_SOCKET"
-
-# Same numbers as tvsd.daemon.rpc_protocol (not imported: tvsctl must start fast, without daemon deps).
-INVALID_PARAMS = -32602
-DEVICE_ERROR = -32001
 
 
 def socket_path(arg: Path | None) -> Path:
