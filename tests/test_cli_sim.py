@@ -11,7 +11,7 @@ import pytest
 
 from tvsd.cli.main import main
 from tvsd.errors import EXIT_USAGE
-from tvsd.recording import read
+from tvsd.recording.csvfile import read
 
 
 def run(capsys, *argv: str) -> tuple[int, str, str]:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from tvsd.recording import read as read_recording
+from tvsd.recording.csvfile import read as read_recording
 
 START_S = 60.0  # first start compiles the control kernel; later starts load it from the cache
 
@@ -175,7 +175,8 @@ def test_kill_9_during_recording_reads_back(daemon, tmp_path):
     time.sleep(3.0)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait(10)
-    from tvsd.daemon.recorder import LOOP_CHANNEL, open_recording
+    from tvsd.recording.format import LOOP_CHANNEL
+    from tvsd.recording.reader import open_recording
 
     rec = open_recording(next(data.iterdir()))
     loop = rec.channels[LOOP_CHANNEL]

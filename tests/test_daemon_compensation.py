@@ -20,7 +20,7 @@ import numpy as np
 from test_daemon import daemon, status, tvsctl, wait_for  # noqa: F401  (the fixture, by name)
 
 from tvsd.config import load_config
-from tvsd.daemon.recording_reader import open_recording
+from tvsd.recording.reader import open_recording
 from tvsd.scan import pulses as PP
 from tvsd.scan.points import FLAG_COMPENSATED
 from tvsd.scan.stream import PointStream

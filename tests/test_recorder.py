@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 from tvsd.cli import main as cli
-from tvsd.daemon import recording_format as F
-from tvsd.daemon.recorder import Recorder
-from tvsd.daemon.recording_format import LOOP_FIELDS
-from tvsd.daemon.recording_reader import open_recording
 from tvsd.errors import UsageError
-from tvsd.recording import read as read_csv
+from tvsd.recording import format as F
+from tvsd.recording.csvfile import read as read_csv
+from tvsd.recording.format import LOOP_FIELDS
+from tvsd.recording.reader import open_recording
+from tvsd.recording.writer import Recorder
 
 CONFIG = "plant:\n  name: bench\n  J: 6.4e-5\ncontrol:\n  rate_hz: 10000\n  gains: {Gp: 3.78}\n"
 IMU = [("t", "<f8"), ("gyro", "<f4", (3,)), ("sensor", "u1")]
@@ -99,7 +99,7 @@ CHILD = textwrap.dedent(
     """
     import sys, time
     import numpy as np
-    from tvsd.daemon.recorder import Recorder
+    from tvsd.recording.writer import Recorder
     rec = Recorder(sys.argv[1], "plant: {name: child}\\n")
     ch = rec.channel("loop", [("seq", "<i8"), ("t", "<f8")])
     seq, start = 0, time.monotonic()

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tvsd.errors import DataFileError
-from tvsd.recording import read, write
+from tvsd.recording.csvfile import read, write
 
 GOOD = "# tvs-recording: 1\n# sample_rate_hz: 1000\n# rps_setpoint: 20\nt,u,omega,phi\n"
 

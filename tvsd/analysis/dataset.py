@@ -20,7 +20,7 @@ import numpy as np
 
 from tvsd.config import Config
 from tvsd.errors import DataFileError
-from tvsd.recording import read as read_recording
+from tvsd.recording.csvfile import read as read_recording
 
 
 @dataclass(frozen=True)

@@ -14,13 +14,13 @@ from pathlib import Path
 import numpy as np
 
 from tvsd.cli.output import warn
-from tvsd.daemon.recording_format import LOOP_CHANNEL
-from tvsd.daemon.recording_reader import flatten_config, open_recording
 from tvsd.errors import EXIT_OK, DataFileError, UsageError
-from tvsd.recording import write
+from tvsd.recording.csvfile import write
+from tvsd.recording.format import LOOP_CHANNEL
+from tvsd.recording.reader import flatten_config, open_recording
 
 CONFIG_SECTIONS = ("plant", "drive", "control", "geometry")
-SIGNIFICANT_DIGITS = 9  # tvsd.recording.write keeps %.9g
+SIGNIFICANT_DIGITS = 9  # tvsd.recording.csvfile.write keeps %.9g
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -1,7 +1,7 @@
-"""What the daemon records, channel by channel, into one Recorder (tvsd/daemon/recorder.py).
+"""What the daemon records, channel by channel, into one Recorder (tvsd/recording/writer.py).
 
 Channels of a daemon recording (numpy structured rows; `tvsctl export REC --csv` writes `loop` as
-DESIGN.md's recording CSV, and `tvsd.daemon.recorder.open_recording(REC).channels[name]` gives
+DESIGN.md's recording CSV, and `tvsd.recording.writer.open_recording(REC).channels[name]` gives
 any of them to numpy/pandas users):
 
 - `loop`       1 kHz bins of the control thread's ticks: t, u, omega, phi (DESIGN.md's CSV).
@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 
 from tvsd.control import runner as RN
-from tvsd.daemon.recorder import LOOP_CHANNEL, LOOP_FIELDS, Recorder
+from tvsd.recording.format import LOOP_CHANNEL, LOOP_FIELDS
+from tvsd.recording.writer import Recorder
 from tvsd.scan.points import FIELDS as POINT_FIELDS
 
 RECORD_PERIOD_S = 1e-3  # 10 kHz ticks → a 1 kHz recording (DESIGN.md's sample_rate_hz)

@@ -21,7 +21,7 @@ import numpy as np
 from tvsd.causes import Effect
 from tvsd.config import Config, MeasurementConfig
 from tvsd.errors import UsageError
-from tvsd.recording import write
+from tvsd.recording.csvfile import write
 from tvsd.sim import runs
 
 PROFILES = ("steps", "spin")

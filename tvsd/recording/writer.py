@@ -4,9 +4,8 @@ Producers (the 10 kHz thread's batches, the IMU reader, the scan pipeline, the e
 ``Channel.append(array)``, which copies the rows and hands them to a writer thread without ever
 blocking: if more than ``max_pending_bytes`` wait for the disk, the batch is dropped and counted.
 
-It owns writing only. The bytes on disk are `tvsd.daemon.recording_format`; reading them back,
-damage included, is `tvsd.daemon.recording_reader` (``open_recording``, re-exported here with the
-loop-channel convention for the daemon and its tests).
+It owns writing only. The bytes on disk are `tvsd.recording.format`; reading them back, damage
+included, is `tvsd.recording.reader` (``open_recording``).
 
 Crash safety: the writer hands its buffer to the kernel (``os.write``) every ``flush_interval_s``
 (0.2 s) and fsyncs every ``fsync_interval_s`` (1 s). ``kill -9`` of the daemon loses only what had
@@ -31,14 +30,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
-from tvsd.daemon.recording_format import (
+from tvsd.errors import UsageError
+from tvsd.recording.format import (
     CHANNEL,
     CONFIG,
     DATA,
     FORMAT_VERSION,
     HEADER,
-    LOOP_CHANNEL,
-    LOOP_FIELDS,
     MAGIC,
     MARK,
     SEGMENT_GLOB,
@@ -46,19 +44,6 @@ from tvsd.daemon.recording_format import (
     encode,
     segment_name,
 )
-from tvsd.daemon.recording_reader import RecordingFile, flatten_config, open_recording
-from tvsd.errors import UsageError
-
-__all__ = [
-    "LOOP_CHANNEL",
-    "LOOP_FIELDS",
-    "Channel",
-    "ChannelStats",
-    "Recorder",
-    "RecordingFile",
-    "flatten_config",
-    "open_recording",
-]
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """The daemon's recording format (``.tvsrec`` segments): record layout, kinds, one record in and out.
 
-Shared by the writer (`tvsd.daemon.recorder`) and the reader (`tvsd.daemon.recording_reader`); it
+Shared by the writer (`tvsd.recording.writer`) and the reader (`tvsd.recording.reader`); it
 owns the bytes on disk and nothing else.
 
 One recording = one directory of segment files ``seg-00000.tvsrec``, ``seg-00001.tvsrec``...;

@@ -1,6 +1,6 @@
 """Reading a recording the daemon wrote: `open_recording` and what it returns, `RecordingFile`.
 
-It owns getting the data back out of ``.tvsrec`` segments (format: `tvsd.daemon.recording_format`),
+It owns getting the data back out of ``.tvsrec`` segments (format: `tvsd.recording.format`),
 including damage: the reader checks every record's CRC; a damaged record is skipped by searching
 for the next sync whose record checks out, and counted (``corrupt_records``); bytes after the last
 good record of the last segment are a torn tail (``torn_tail_bytes``), reported, not raised.
@@ -16,7 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from tvsd.daemon.recording_format import (
+from tvsd.errors import DataFileError
+from tvsd.recording.format import (
     CHANNEL,
     CONFIG,
     DATA,
@@ -28,7 +29,6 @@ from tvsd.daemon.recording_format import (
     SYNC,
     record_at,
 )
-from tvsd.errors import DataFileError
 
 
 @dataclass
