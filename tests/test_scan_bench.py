@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from tvsd.scan.bench import bench_latency, bench_triangulation
+from tvsd.sim.scan_bench import bench_latency, bench_triangulation
 
 
 def test_triangulation_bench_reports_a_rate():
@@ -22,7 +22,7 @@ def test_latency_bench_separates_the_methods_wait():
 
 
 def test_pipeline_bench_counts_points():
-    from tvsd.scan.bench import bench_pipeline
+    from tvsd.sim.scan_bench import bench_pipeline
 
     res = bench_pipeline(seconds=2.0, repeats=1)
     assert res["scan_pipeline_points_per_s"] > 1e3  # ~1e4 here; 25 rev/s needs 25

@@ -14,12 +14,12 @@ import pytest
 from tvsd.causes import parse_effects
 from tvsd.config import load_config
 from tvsd.errors import UsageError
-from tvsd.scan import report
 from tvsd.scan.geometry import aim, doe_b_target
 from tvsd.scan.pipeline import process
 from tvsd.scan.pulses import clean
 from tvsd.scan.settings import ScanSettings
 from tvsd.scan.stream import PointStream
+from tvsd.sim import scan_report as report
 from tvsd.sim import scene
 
 IMBALANCE = parse_effects(["imbalance:amplitude=7e-5,phase=0.3"])

@@ -22,7 +22,7 @@ def _sim() -> dict[str, Any]:
 
 
 def _scan() -> dict[str, Any]:
-    from tvsd.scan import bench
+    from tvsd.sim import scan_bench as bench
 
     return {**bench.bench_triangulation(), **bench.bench_pipeline(), **bench.bench_latency()}
 

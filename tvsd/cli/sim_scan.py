@@ -60,8 +60,9 @@ def _floats(text: str) -> tuple[float, ...]:
 
 def handle(args: argparse.Namespace) -> int:
     from tvsd.causes import parse_effects
-    from tvsd.scan import points, report
+    from tvsd.scan import points
     from tvsd.scan.settings import ScanSettings
+    from tvsd.sim import scan_report as report
     from tvsd.sim import scene
 
     if not 1.0 <= args.seconds <= 120.0:
@@ -135,7 +136,7 @@ def _mm(v: tuple[float, float, float] | list[float]) -> str:
 
 
 def _print_human(out: dict[str, Any], cases: list[Any]) -> None:
-    from tvsd.scan import report
+    from tvsd.sim import scan_report as report
 
     g = out["geometry"]
     print(
