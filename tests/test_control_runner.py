@@ -20,9 +20,10 @@ from numba.core.runtime import rtsys
 from tvsd.config import load_config
 from tvsd.control import latency as L
 from tvsd.control import runner as RN
+from tvsd.control import scanning
+from tvsd.control.setup import Setup
 from tvsd.model import params as P
 from tvsd.model import plant as K
-from tvsd.sim.runs import Setup
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +93,7 @@ def test_scanning_command_is_the_law_of_what_it_saw(setup: Setup) -> None:
         assert dt == pytest.approx(row[RN.R_T] - prev[RN.R_T], abs=1e-9)
         assert row[RN.R_PHI_REF] - prev[RN.R_PHI_REF] == pytest.approx(row[RN.R_OMEGA_REF] * dt, abs=1e-12)
         alpha = (row[RN.R_OMEGA_REF] - prev[RN.R_OMEGA_REF]) / dt
-        u_ff = K.feedforward.py_func(
+        u_ff = scanning.feedforward.py_func(
             row[RN.R_OMEGA_REF],
             alpha,
             p[P.P_J],

@@ -11,6 +11,7 @@ from scipy.optimize import brentq
 
 from tvsd.causes import parse_effect, parse_effects
 from tvsd.config import VibrationConfig, load_config
+from tvsd.control.setup import Setup
 from tvsd.errors import UsageError
 from tvsd.model.lugre import steady_friction
 from tvsd.sim import metrics, runs
@@ -23,8 +24,8 @@ def cfg():
     return load_config()
 
 
-def _setup(cfg, *texts: str, vib: VibrationConfig = OFF) -> runs.Setup:
-    return runs.Setup.from_config(cfg, effects=parse_effects(texts), vibration=vib)
+def _setup(cfg, *texts: str, vib: VibrationConfig = OFF) -> Setup:
+    return Setup.from_config(cfg, effects=parse_effects(texts), vibration=vib)
 
 
 def _steady(trace: runs.Trace, seconds: float) -> np.ndarray:

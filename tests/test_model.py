@@ -11,6 +11,7 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 from tvsd.config import VibrationConfig, load_config
+from tvsd.control.setup import Setup
 from tvsd.model.lugre import lugre_step, steady_friction, stribeck
 from tvsd.sim import runs
 
@@ -34,7 +35,7 @@ def _steady_speed(p, u: float) -> float:
 
 @pytest.mark.parametrize("u", [3.0, 6.0, 12.0])
 def test_steady_speed_matches_the_torque_balance(cfg, u):
-    setup = runs.Setup.from_config(cfg, vibration=OFF)
+    setup = Setup.from_config(cfg, vibration=OFF)
     # 30 s = 12.5 mechanical time constants (2.4 s): the transient left is e^-12.5 ≈ 4e-6.
     trace = runs.open_loop(setup, np.full(300_000, u), decim=1000)
     expected = _steady_speed(cfg.plant, u)
@@ -44,7 +45,7 @@ def test_steady_speed_matches_the_torque_balance(cfg, u):
 def test_electrical_step_follows_the_first_order_response(cfg):
     # A huge inertia holds the shaft still, leaving L·di/dt = ku·u − R·i.
     plant = dataclasses.replace(cfg.plant, J=1e6)
-    setup = runs.Setup.from_config(dataclasses.replace(cfg, plant=plant), vibration=OFF)
+    setup = Setup.from_config(dataclasses.replace(cfg, plant=plant), vibration=OFF)
     u = 6.0
     trace = runs.open_loop(setup, np.full(50, u), decim=1)
     i_ss = plant.ku * u / plant.R
@@ -95,7 +96,7 @@ def test_explicit_rk4_on_the_bristle_would_diverge(cfg):
 
 
 def _noise_run(cfg, vib: VibrationConfig, seconds: float) -> runs.Trace:
-    setup = runs.Setup.from_config(cfg, vibration=vib, effects=())
+    setup = Setup.from_config(cfg, vibration=vib, effects=())
     return runs.open_loop(setup, np.zeros(round(seconds / setup.dt)), decim=1)
 
 

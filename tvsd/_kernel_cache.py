@@ -3,7 +3,7 @@
 Numba decides whether a cached kernel is still good from the mtime and size of the file that
 defines it, and nothing else. A kernel, though, freezes the module constants it reads from other
 files (the runner indexes shared words by `latency.K_*`) and inlines the kernels it calls from
-other files (the runner steps `plant.run`). After a change to those files alone, numba would load
+other files (the runner steps `plant.advance`). After a change to those files alone, numba would load
 the stale kernel, which then reads and writes the wrong words. A `git pull` that touches
 latency.py but not runner.py does exactly that.
 

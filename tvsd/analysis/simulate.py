@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 
 from tvsd.model import effects as E
-from tvsd.model.plant import _drive_output, _shaft_torque
+from tvsd.model.plant import drive_output, shaft_torque
 
 
 @dataclass(frozen=True)
@@ -89,9 +89,9 @@ def _simulate(
             # values of the signal, as the inverse model treats them. Angle-locked torques use
             # the measured angle (the encoder is exact to a count; a simulated angle drifts).
             x = (s + 0.5) / substeps
-            ua = _drive_output((1.0 - x) * u[k] + x * u[k + 1], eff)
+            ua = drive_output((1.0 - x) * u[k] + x * u[k + 1], eff)
             angle = (1.0 - x) * phi0[k] + x * phi0[k + 1]
-            drive = buk * ua - off + _shaft_torque(angle, t[k] + (s + 0.5) * h, eff)
+            drive = buk * ua - off + shaft_torque(angle, t[k] + (s + 0.5) * h, eff)
             if w < 0.0:
                 kve, tce = kvk * kvn, tck * tcn
             else:

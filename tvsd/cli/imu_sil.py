@@ -13,6 +13,7 @@ import argparse
 
 import numpy as np
 
+from tvsd.control.setup import Setup
 from tvsd.errors import UsageError
 from tvsd.hw.imu_clock import Clock, ManualClock, MonotonicClock
 from tvsd.hw.mpu6050 import SA_AXES, ImuSettings
@@ -102,7 +103,7 @@ def plant_motion(args: argparse.Namespace, axis: int) -> MotionSource:
     if not texts and args.imbalance > 0:
         texts.append(f"imbalance:amplitude={args.imbalance * cfg.plant.J:.6g},phase=0")
     vib = VibrationConfig(model="ou", sigma_v=args.vibration, tau_n_s=cfg.sil_or_default.vibration.tau_n_s)
-    setup = runs.Setup.from_config(cfg, effects=parse_effects(texts), vibration=vib, seed=args.seed)
+    setup = Setup.from_config(cfg, effects=parse_effects(texts), vibration=vib, seed=args.seed)
     settle = abs(args.rps) / cfg.control.scan_accel_rps2 + 1.0  # spin up, then capture
     trace = runs.spin(setup, args.rps, settle + args.seconds + 1.0, decim=1)
     keep = trace.t >= settle - 0.5

@@ -273,7 +273,7 @@ def compare(seconds: float, *, realtime: bool = True, rps: float = 25.0) -> dict
     # Imported here: the runner builds on this module's primitives.
     from tvsd.config import load_config
     from tvsd.control.runner import V_OMEGA, Runner, request_realtime
-    from tvsd.sim.runs import Setup
+    from tvsd.control.setup import Setup
 
     cfg = load_config(params="default")
     # The overrun latch is off: on a busy machine it would stop the law mid-measurement (and the

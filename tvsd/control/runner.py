@@ -30,7 +30,7 @@ measurement older than K_STALE_NS while the drive is commanded latches FAULT_STA
 0 from the first tick past the limit, whatever the event loop is doing (the MCU link's own loss
 report comes later, from asyncio).
 
-SIL: the plant kernel (tvsd.model.plant.run, open loop) is stepped inside the same loop by the
+SIL: the plant kernel (tvsd.model.plant.advance, open loop) is stepped inside the same loop by the
 real elapsed time with the command held since the previous tick, so the simulated scanner runs in
 real time. Its state (tvsd.model.plant.state_array) carries the plant's time and delay ring across
 ticks, so fixed-frequency effects and the delay stay continuous and a tick allocates nothing; a
@@ -51,9 +51,10 @@ from numba import njit
 
 from tvsd.control import latency as L
 from tvsd.control.law import robust_law
+from tvsd.control.scanning import ramp_toward, track
+from tvsd.control.setup import Setup
 from tvsd.model import params as P
 from tvsd.model import plant as K
-from tvsd.sim.runs import Setup
 
 # Runner words after the timing words of tvsd.control.latency.
 (K_FAULT, K_STREAK_LIMIT, K_BUSY_NS, K_MEAS_NS, K_STALE_NS, K_FAULT_NS, K_FAULT_MEAS_NS) = range(
@@ -67,7 +68,7 @@ FAULT_NONE, FAULT_OVERRUN, FAULT_STALE = 0, 1, 2
 (V_MODE, V_REF, V_GP, V_GD, V_GR, V_G0, V_UMAX, V_ACCEL, V_MAXLAG, V_FF, V_PHI, V_OMEGA) = range(12)
 (V_U, V_PHI_REF, V_OMEGA_REF, V_DT) = range(12, 16)
 N_VALS = 16
-MODE_IDLE, MODE_POSITION, MODE_SCAN = 0, K.MODE_POSITION, K.MODE_SCAN
+MODE_IDLE, MODE_POSITION, MODE_SCAN = 0, 1, 2
 
 # rec columns: one row per tick, row = tick % len(rec).
 R_T, R_DT, R_PHI, R_OMEGA, R_PHI_REF, R_OMEGA_REF, R_UFF, R_U, R_LATE_US = range(9)
@@ -120,9 +121,7 @@ def control_loop(
     plant: np.ndarray,
     eff: np.ndarray,
     vib: np.ndarray,
-    pctrl: np.ndarray,
     u_hold: np.ndarray,
-    pout: np.ndarray,
     plant_dt: float,
 ) -> None:
     """Run ticks until ints[K_STOP] (or K_MAX_TICKS); all state lives in the arrays."""
@@ -153,7 +152,7 @@ def control_loop(
             n = min(int(sim_debt / plant_dt), MAX_PLANT_STEPS)
             sim_debt = 0.0 if n == MAX_PLANT_STEPS else sim_debt - n * plant_dt
             u_hold[0] = u
-            K.run(state, plant, eff, vib, pctrl, plant_dt, n, u_hold, 1 << 30, -1, pout)
+            K.advance(state, plant, eff, vib, plant_dt, n, u_hold, 1 << 30, -1)
             vals[V_PHI] = state[K.S_PHI]
             vals[V_OMEGA] = state[K.S_OMEGA]
         measurement = _read_measurement(ints, vals, ts, measurement)
@@ -185,14 +184,14 @@ def control_loop(
             u = robust_law(phi_ref - phi, -omega, vals[V_GP], vals[V_GD], vals[V_GR], vals[V_G0], umax)
         else:
             # Scanning: the speed reference ramps, the angle reference integrates it over the
-            # measured step, and slips beyond the allowed lag (anti-windup), as in the plant kernel.
+            # measured step, and slips beyond the allowed lag (anti-windup), as in the offline simulation.
             omega_prev = omega_ref
-            omega_ref = K.ramp_toward(
+            omega_ref = ramp_toward(
                 omega_ref, 2.0 * math.pi * vals[V_REF], 2.0 * math.pi * vals[V_ACCEL] * dt
             )
             phi_ref += omega_ref * dt
             alpha = (omega_ref - omega_prev) / dt if dt > 0.0 else 0.0
-            u, u_ff, phi_ref, _ = K.track(
+            u, u_ff, phi_ref, _ = track(
                 phi, omega, phi_ref, omega_ref, alpha, vals[V_MAXLAG], vals[V_FF] != 0.0 and dt > 0.0,
                 J, kv, kM, kb, R, ku, tc, tsv, v0, vals[V_GP], vals[V_GD], vals[V_GR], vals[V_G0], umax,
             )  # fmt: skip
@@ -289,25 +288,20 @@ class Runner:
         self.ts = np.zeros(2, dtype=np.int64)
         self.plant_dt = setup.dt / setup.substeps
         self.state = K.state_array(self.plant_dt)  # room for the delay ring: no allocation per tick
-        self.pctrl = setup.controller(K.MODE_OPEN, 0.0)
-        self.pctrl[K.C_DIV] = 1 << 30  # open loop: u_hold[0] for the whole call
-        self.u_hold = np.zeros(1)
-        self.pout = np.zeros((0, K.N_OUT))
+        self.u_hold = np.zeros(1)  # the command held over each tick's plant steps
         self.cpu_s = 0.0
         self._thread: threading.Thread | None = None
         if sil:  # seed the plant's vibration once; per-tick calls pass seed -1
-            K.run(
+            K.advance(
                 self.state,
                 setup.plant,
                 setup.effects,
                 setup.vibration,
-                self.pctrl,
                 self.plant_dt,
                 0,
                 self.u_hold,
                 1,
                 setup.seed,
-                self.pout,
             )
 
     # --- I/O side -------------------------------------------------------------------------------
@@ -406,9 +400,7 @@ class Runner:
             s.plant,
             s.effects,
             s.vibration,
-            self.pctrl,
             self.u_hold,
-            self.pout,
             self.plant_dt,
         )
         self.cpu_s = time.thread_time() - cpu0

@@ -40,6 +40,7 @@ import numpy as np
 from tvsd.config import Config
 from tvsd.control import latency as L
 from tvsd.control import runner as RN
+from tvsd.control.setup import Setup
 from tvsd.daemon.api import Api
 from tvsd.daemon.drive_link import HOME_TIMEOUT_S, DriveLink
 from tvsd.daemon.imu_feed import ImuFeed
@@ -55,7 +56,6 @@ from tvsd.scan.compensation import DriveModel
 from tvsd.scan.points import FLAG_NO_IMU
 from tvsd.scan.pulses import OPTICAL
 from tvsd.scan.stream import PointStream
-from tvsd.sim import runs
 
 DRAIN_S = 0.02  # how often recorded ticks move on
 FAULT_WINDOW_S = 2.0  # full-rate control ticks recorded before each fault
@@ -88,7 +88,7 @@ class Daemon:
         self.data_dir = data_dir
         self.out = out  # the foreground status line (make run); None under systemd
         self.config_text = config_text
-        self.setup = runs.Setup.from_config(cfg)
+        self.setup = Setup.from_config(cfg)
         self.runner = RN.Runner(
             self.setup, sil=False, realtime=realtime, streak_limit=cfg.control.overrun_streak_ticks
         )

@@ -14,6 +14,7 @@ import numpy as np
 from tvsd.causes import Effect
 from tvsd.config import Config, Gains
 from tvsd.control.conditions import check_gains, warnings
+from tvsd.control.setup import Setup
 from tvsd.errors import UsageError
 from tvsd.sim import metrics, runs
 
@@ -60,7 +61,7 @@ def step(
     from tvsd.config import VibrationConfig
 
     vib = VibrationConfig(model="off") if vibration_off else None
-    setup = runs.Setup.from_config(cfg, gains=gains, ku=ku, vibration=vib, substeps=substeps)
+    setup = Setup.from_config(cfg, gains=gains, ku=ku, vibration=vib, substeps=substeps)
     ref = math.radians(ref_deg)
     trace = runs.step_response(setup, ref, seconds)
     conds = check_gains(setup.gains, cfg.plant, cfg.control.disturbance_bound_rad_s2, ku=ku)
@@ -164,7 +165,7 @@ def spin(
     # The paper's spinning runs were open loop with ku ≈ 166 (MODEL-NOTES §3); its closed-loop ku
     # (≈ 10) cannot reach scanning speed within the drive's voltage.
     ku = cfg.reproduction.open_loop_ku if cfg.reproduction is not None else None
-    setup = runs.Setup.from_config(cfg, effects=effects, seed=seed, ku=ku)
+    setup = Setup.from_config(cfg, effects=effects, seed=seed, ku=ku)
     decim = round(1.0 / (setup.dt * IMU_RATE_HZ))
     trace = runs.spin(setup, rps, seconds, decim)
     steady = trace.t >= steady_from

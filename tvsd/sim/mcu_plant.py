@@ -1,6 +1,6 @@
 """SIL bridge: the drive model turns the virtual MCU's inputs, the MCU's PWM turns the model.
 
-The plant (tvsd.model.plant's kernel, open loop) is stepped in chunks (1 ms by default) on the
+The plant (tvsd.model.plant.advance, open loop) is stepped in chunks (1 ms by default) on the
 virtual MCU's manual clock. Each chunk applies the MCU's PWM duty × drive voltage (the host sets
 the PWM through ``McuLink.send_pwm``): paced, each PWM frame from the moment it arrived, to the
 control step (0.1 ms), as the motor integrates every one of a 2.5 kHz stream; stepped as fast as
@@ -54,6 +54,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from tvsd.config import Config, VibrationConfig
+from tvsd.control.setup import Setup
 from tvsd.model import plant as K
 from tvsd.scan.geometry import aim, doe_b_target
 from tvsd.scan.settings import ScanSettings
@@ -142,7 +143,7 @@ class McuPlant:
     def __post_init__(self) -> None:
         if not self.speed > 0:
             raise ValueError(f"speed must be > 0, got {self.speed}")
-        self.setup = runs.Setup.from_config(self.cfg, vibration=self.vibration)
+        self.setup = Setup.from_config(self.cfg, vibration=self.vibration)
         self.counts_per_rev = self.cfg.sil_or_default.measurement.encoder_counts_per_rev
         self.beta = target_beta(self.cfg, self.target)
         self._n = max(1, round(self.chunk_s / self.setup.dt))
@@ -150,11 +151,9 @@ class McuPlant:
         self._state = K.state_array(self.setup.dt)
         if self.initial_state is not None:
             self._state[: len(self.initial_state)] = self.initial_state
-        self._ctrl = self.setup.controller(K.MODE_OPEN, 0.0)
         self._u = np.zeros(self._n)
         self._pwm_pending: deque[tuple[float, float]] | None = None  # paced: (sim time, duty) to apply
         self._duty = 0.0  # the duty in force at the end of the last chunk (paced)
-        self._out = np.zeros((1, K.N_OUT))
         self._seed = self.setup.seed  # the kernel reseeds numpy when seed >= 0: only once
         self.t = 0.0  # sim time of the plant (= the MCU's manual clock after each chunk)
         self._chunks = 0  # t = chunks × chunk_s, not a running sum (no drift across the timer's ticks)
@@ -203,18 +202,16 @@ class McuPlant:
         else:
             self._chunk_volts(t0)
         sub = self.setup.substeps
-        K.run(
+        dist = K.advance(
             self._state,
             self.setup.plant,
             self.setup.effects,
             self.setup.vibration,
-            self._ctrl,
             self.setup.dt / sub,
             self._n * sub,
             self._u,
-            self._n * sub,
+            sub,
             self._seed,
-            self._out,
         )
         self._seed = -1
         self._chunks += 1
@@ -226,7 +223,7 @@ class McuPlant:
             self.optical_times.append(t_o)
         self._feed(t1, a1)
         self.t = t1
-        self._remember(float(self._out[0, K.O_DIST_MEAN]))
+        self._remember(dist)
 
     def _chunk_volts(self, t0: float) -> None:
         """Each control step of the chunk gets the duty in force at its start: the host's PWM
@@ -363,7 +360,7 @@ def steady_state(
 ) -> np.ndarray:
     """The plant's state after `seconds` at a constant voltage (angle reset to 0): a start at
     constant speed, so a revolution's β is not skewed by acceleration."""
-    setup = runs.Setup.from_config(cfg, vibration=vibration)
+    setup = Setup.from_config(cfg, vibration=vibration)
     state = K.state_array(setup.dt)
     runs.open_loop(
         setup, np.full(round(seconds / setup.dt), volts), decim=round(seconds / setup.dt), state=state

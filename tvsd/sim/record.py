@@ -20,6 +20,7 @@ import numpy as np
 
 from tvsd.causes import Effect
 from tvsd.config import Config, MeasurementConfig
+from tvsd.control.setup import Setup
 from tvsd.errors import UsageError
 from tvsd.recording.csvfile import write
 from tvsd.sim import runs
@@ -77,7 +78,7 @@ def record(
     if profile not in PROFILES:
         raise UsageError(f"unknown profile '{profile}'; choose {' or '.join(PROFILES)}")
     m = cfg.sil_or_default.measurement
-    setup = runs.Setup.from_config(cfg, effects=effects, seed=seed)
+    setup = Setup.from_config(cfg, effects=effects, seed=seed)
     decim = round(1.0 / (setup.dt * m.sample_rate_hz))
     if decim < 1 or abs(decim * setup.dt * m.sample_rate_hz - 1.0) > 1e-9:
         raise UsageError(

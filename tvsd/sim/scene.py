@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from tvsd.causes import Effect
 from tvsd.config import Config, VibrationConfig
+from tvsd.control.setup import Setup
 from tvsd.errors import UsageError
 from tvsd.scan.compensation import DriveModel, KnownAccel
 from tvsd.scan.encoder import EncoderLog
@@ -136,7 +137,7 @@ def spin_trace(
     vib = VibrationConfig(model="sde" if sigma_v > 0 else "off", sigma_v=sigma_v)
     # The paper set spins with its open-loop ku (MODEL-NOTES §3), as `tvsctl sim spin` does.
     ku = cfg.reproduction.open_loop_ku if cfg.reproduction is not None else None
-    setup = runs.Setup.from_config(cfg, effects=effects, vibration=vib, seed=seed, ku=ku)
+    setup = Setup.from_config(cfg, effects=effects, vibration=vib, seed=seed, ku=ku)
     # Ramp at scan_accel_rps2, then 1 s for the loop to settle (tvsd.sim.experiments).
     settle = rps / cfg.control.scan_accel_rps2 + 1.0
     return runs.spin(setup, rps, settle + seconds), settle
