@@ -31,6 +31,7 @@ test: $(STAMP) system-deps lint pytest firmware-test
 lint: $(STAMP)
 	$(BIN)/ruff check tvsd tests
 	$(BIN)/mypy
+	$(BIN)/lint-imports
 
 pytest: $(STAMP)
 	$(BIN)/python -m pytest -q
