@@ -10,10 +10,10 @@ from __future__ import annotations
 import math
 import time
 import tracemalloc
-from collections.abc import Callable
 
 import numpy as np
 import pytest
+from conftest import wait_for
 from numba.core.runtime import _nrt_python as nrt_stats  # type: ignore[attr-defined]
 from numba.core.runtime import rtsys
 
@@ -42,15 +42,6 @@ def _law(eps: float, eps_dot: float, g: tuple[float, float, float, float], umax:
     return max(-umax, min(umax, u))
 
 
-def _wait(pred: Callable[[], bool], timeout: float) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.01)
-    return False
-
-
 def test_runs_n_ticks_then_stops_on_request(setup: Setup) -> None:
     r = RN.Runner(setup)
     r.start(max_ticks=500)
@@ -58,7 +49,7 @@ def test_runs_n_ticks_then_stops_on_request(setup: Setup) -> None:
     assert r.ticks == 500
     assert r.ints[L.K_RUNNING] == 0
     r.start()
-    assert _wait(lambda: r.ticks > 100, 10.0), "loop did not tick"
+    wait_for(lambda: r.ticks, 10.0, "100 ticks", ok=lambda n: n > 100)
     r.stop(5.0)
     stopped_at = r.ticks
     time.sleep(0.05)
@@ -119,7 +110,7 @@ def test_hardware_mode_uses_the_measured_inputs(setup: Setup) -> None:
     r.measured(0.1, 2.0)
     r.position(0.3)
     r.start()
-    assert _wait(lambda: r.ticks > 50, 10.0)
+    wait_for(lambda: r.ticks, 10.0, "50 ticks", ok=lambda n: n > 50)
     u_seen = r.command
     r.stop(5.0)
     expect = _law(0.3 - 0.1, -2.0, setup.gains.as_tuple(), setup.u_max)
@@ -134,11 +125,11 @@ def test_a_measurement_with_its_sampling_time_is_carried_forward_at_its_speed(se
     r = RN.Runner(setup, sil=False)
     r.position(0.0)
     r.start()
-    assert _wait(lambda: r.ticks > 5, 10.0)
+    wait_for(lambda: r.ticks, 10.0, "5 ticks", ok=lambda n: n > 5)
     sample_ns = time.monotonic_ns()
     r.measured(0.1, 2.0, sample_ns=sample_ns)
     first = r.ticks
-    assert _wait(lambda: r.ticks > first + 50, 10.0)
+    wait_for(lambda: r.ticks, 10.0, "50 more ticks", ok=lambda n: n > first + 50)
     r.stop(5.0)
     rec = r.recent(40)
     start_ns = int(r.ints[L.K_START_NS])
@@ -158,12 +149,17 @@ def test_sil_plant_spins_up_in_real_time(setup: Setup) -> None:
     r.scan(20.0)
     t0 = time.monotonic()
     r.start()
-    target = 2 * math.pi * 20.0
-    ok = _wait(lambda: abs(r.vals[RN.V_OMEGA] - target) < 0.02 * target and time.monotonic() - t0 > 2.0, 8.0)
-    wall = time.monotonic() - t0
-    r.stop(5.0)
+    try:
+        wait_for(
+            lambda: r.vals[RN.V_OMEGA] / (2 * math.pi),
+            8.0,
+            "the SIL plant at 20 rev/s ± 2 % after 2 s",
+            ok=lambda rps: abs(rps - 20.0) < 0.02 * 20.0 and time.monotonic() - t0 > 2.0,
+        )
+    finally:
+        wall = time.monotonic() - t0
+        r.stop(5.0)
     sim_time = r.recent(1)[0, RN.R_T]
-    assert ok, f"SIL plant at {r.vals[RN.V_OMEGA] / 2 / math.pi:.2f} rev/s after {wall:.1f} s"
     assert wall >= 1.9, "the ramp cannot finish before 2 s of real time: the plant ran faster than real time"
     assert sim_time == pytest.approx(wall, abs=0.3)
     assert r.state[K.S_OMEGA] == r.vals[RN.V_OMEGA]
@@ -175,9 +171,9 @@ def test_overrun_streak_latches_the_safe_state(setup: Setup) -> None:
     r.scan(20.0)
     r.ints[RN.K_BUSY_NS] = 3 * r.ints[L.K_PERIOD_NS]
     r.start()
-    assert _wait(lambda: r.fault, 10.0), "no fault after sustained overrun"
+    wait_for(lambda: r.fault, 10.0, "the fault after sustained overrun")
     assert r.ints[L.K_LATE_TICKS] >= 20
-    assert _wait(lambda: r.command == 0.0, 1.0)
+    wait_for(lambda: r.command, 1.0, "command 0", ok=lambda u: u == 0.0)
     time.sleep(0.02)
     assert r.command == 0.0 and r.fault, "the safe state must latch"
     r.ints[RN.K_BUSY_NS] = 0
@@ -193,7 +189,7 @@ def test_unmeetable_period_trips_the_fault(setup: Setup) -> None:
     r = RN.Runner(setup, period_s=2e-6, streak_limit=50)
     r.scan(20.0)
     r.start()
-    assert _wait(lambda: r.fault, 10.0)
+    wait_for(lambda: r.fault, 10.0, "the fault")
     r.stop(5.0)
     r.clear_fault()
     assert not r.fault

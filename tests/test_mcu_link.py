@@ -9,11 +9,12 @@ import os
 import threading
 import time
 import tty
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 
 import pytest
+from conftest import until
 
 from tvsd.errors import ConfigError, DeviceError, ProtocolError, UsageError
 from tvsd.hw.mcu.framing import Frame, FrameDecoder, encode_frame
@@ -229,12 +230,9 @@ def test_state_frames_unwrap_16_bit_ticks_and_encoder() -> None:
     run(main)
 
 
-async def wait_for(cond: Callable[[], bool], timeout: float = 2.0) -> None:
-    t_end = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > t_end:
-            raise AssertionError("condition not met in time")
-        await asyncio.sleep(0.001)
+def wait_for(cond: Callable[[], object], timeout: float = 2.0) -> Awaitable[float]:
+    """The shared poll (conftest.until) with this file's usual bound."""
+    return until(cond, timeout)
 
 
 def test_link_loss_reported_in_time_and_recovers() -> None:

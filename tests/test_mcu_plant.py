@@ -10,12 +10,12 @@ from __future__ import annotations
 import asyncio
 import itertools
 import math
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 
 import numpy as np
 import pytest
+from conftest import until
 
 from tvsd.config import Config, VibrationConfig, load_config
 from tvsd.hw.mcu.link import LinkSettings, McuLink, PulseEvent, StateSample
@@ -47,11 +47,7 @@ def bridge(
         yield plant
 
 
-async def wait(cond: Callable[[], bool], timeout: float, what: str) -> None:
-    t_end = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < t_end, f"not within {timeout} s: {what}"
-        await asyncio.sleep(0.001)
+wait = until  # the shared poll
 
 
 async def spin(

@@ -12,9 +12,10 @@ import itertools
 import json
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import pytest
+from conftest import until
 
 import tvsd.cli.main as cli_main
 from tvsd.errors import DeviceError
@@ -157,11 +158,7 @@ def test_watchdog_cuts_outputs_when_heartbeats_stop(vmcu: vm.VirtualMcu) -> None
     asyncio.run(main())
 
 
-async def wait(cond: Callable[[], bool], timeout: float) -> None:
-    t_end = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < t_end, "condition not met in time"
-        await asyncio.sleep(0.001)
+wait = until  # the shared poll
 
 
 def run_cli(argv: list[str], monkeypatch: pytest.MonkeyPatch) -> int:
