@@ -16,8 +16,6 @@ from dataclasses import asdict
 from typing import TYPE_CHECKING, Any
 
 from tvsd.config import Gains
-from tvsd.control import latency as L
-from tvsd.control import runner as RN
 from tvsd.control.conditions import check_gains, warnings
 from tvsd.daemon.rpc import DEVICE_ERROR, INVALID_PARAMS, STATE_ERROR, RpcError
 from tvsd.errors import TvsdError, UsageError
@@ -118,15 +116,14 @@ class Api:
         return await self.api_aim(math.degrees(a.phi), math.degrees(a.gamma))
 
     async def api_gains_get(self) -> dict[str, Any]:
-        g = self.d.runner.vals[RN.V_GP : RN.V_G0 + 1]
-        return {"Gp": float(g[0]), "Gd": float(g[1]), "Gr": float(g[2]), "G0": float(g[3])}
+        return asdict(self.d.runner.gains())
 
     async def api_gains_set(self, Gp: float, Gd: float, Gr: float, G0: float) -> dict[str, Any]:
         if not all(math.isfinite(v) for v in (Gp, Gd, Gr, G0)) or min(Gp, Gd, Gr) < 0 or G0 <= 0:
             raise RpcError(INVALID_PARAMS, "gains must be finite, Gp, Gd, Gr ≥ 0 and G0 > 0")
         gains = Gains(Gp=Gp, Gd=Gd, Gr=Gr, G0=G0)
         conds = check_gains(gains, self.d.cfg.plant, self.d.cfg.control.disturbance_bound_rad_s2)
-        self.d.runner.vals[RN.V_GP : RN.V_G0 + 1] = gains.as_tuple()
+        self.d.runner.set_gains(gains)
         self.d.mark("gains", **asdict(gains))
         return {"gains": {"Gp": Gp, "Gd": Gd, "Gr": Gr, "G0": G0}, "warnings": warnings(conds)}
 
@@ -193,7 +190,7 @@ class Api:
             if device == "control":
                 if fault != "overrun":
                     raise UsageError(f"unknown control fault {fault!r}: use overrun")
-                self.d.runner.ints[RN.K_BUSY_NS] = self.d.runner.ints[L.K_PERIOD_NS] * 3
+                self.d.runner.inject_overrun(periods=3.0)
                 return {"device": device, "fault": fault, "t_mono": time.monotonic()}
             if device == "mcu":
                 return self.d.drive.inject(fault)

@@ -38,8 +38,7 @@ from typing import Any
 import numpy as np
 
 from tvsd.config import Config
-from tvsd.control import latency as L
-from tvsd.control import runner as RN
+from tvsd.control.runner import LoopFault, Runner
 from tvsd.control.setup import Setup
 from tvsd.daemon.api import Api
 from tvsd.daemon.drive_link import HOME_TIMEOUT_S, DriveLink
@@ -60,8 +59,8 @@ from tvsd.scan.stream import PointStream
 DRAIN_S = 0.02  # how often recorded ticks move on
 FAULT_WINDOW_S = 2.0  # full-rate control ticks recorded before each fault
 FAULT_CAUSES = {
-    RN.FAULT_OVERRUN: ("control loop overran its deadline streak", "safe state: PWM 0"),
-    RN.FAULT_STALE: ("MCU state frames stopped", "safe state: PWM 0 from the control thread"),
+    LoopFault.OVERRUN: ("control loop overran its deadline streak", "safe state: PWM 0"),
+    LoopFault.STALE: ("MCU state frames stopped", "safe state: PWM 0 from the control thread"),
 }
 
 
@@ -88,9 +87,11 @@ class Daemon:
         self.data_dir = data_dir
         self.out = out  # the foreground status line (make run); None under systemd
         self.config_text = config_text
-        self.setup = Setup.from_config(cfg)
-        self.runner = RN.Runner(
-            self.setup, sil=False, realtime=realtime, streak_limit=cfg.control.overrun_streak_ticks
+        self.runner = Runner(
+            Setup.from_config(cfg),
+            sil=False,
+            realtime=realtime,
+            streak_limit=cfg.control.overrun_streak_ticks,
         )
         self.drive = DriveLink(
             cfg,
@@ -129,7 +130,7 @@ class Daemon:
         try:
             # The kernel loads from numba's cache holding the GIL: let that pass before the link's
             # heartbeats start, or the firmware's watchdog sees the pause.
-            while self.runner.ints[L.K_RUNNING] == 0 and self.runner.alive:
+            while not self.runner.is_running and self.runner.alive:
                 await asyncio.sleep(0.01)
             rt = self.runner.realtime_report
             if rt is not None:  # asked for: say plainly what was granted and what was not
@@ -215,10 +216,10 @@ class Daemon:
         while True:
             await asyncio.sleep(DRAIN_S)
             ticks = self.runner.ticks
-            n = min(ticks - self._last_tick, self.runner.rec.shape[0])
+            n = min(ticks - self._last_tick, self.runner.ring_size)
             self._last_tick = ticks
             if n > 0 and self.recording is not None:
-                self.recording.loop_ticks(self.runner.recent(n))
+                self.recording.loop_ticks(self.runner.recent_ticks(n))
                 self._check_recording()
 
     async def _heartbeat(self) -> None:
@@ -242,11 +243,11 @@ class Daemon:
         if code and self.state not in ("fault", "stopping"):
             cause, action = FAULT_CAUSES.get(code, (f"control thread fault {code}", "safe state: PWM 0"))
             after = None
-            if code == RN.FAULT_STALE:
+            if code == LoopFault.STALE:
                 after = round(self.runner.fault_after_measurement_s * 1e3, 2)
                 cause += f": none for {self.cfg.mcu.link_timeout_ms:g} ms"
                 action += f" {after:.1f} ms after the last frame"
-            self.runner.ints[RN.K_BUSY_NS] = 0  # an injected overrun ends with its fault
+            self.runner.inject_overrun(0)  # an injected overrun ends with its fault
             self._enter_fault(cause, action, after)
 
     # --- device events (event-loop thread) ---------------------------------------------------------
@@ -365,8 +366,8 @@ class Daemon:
 
     @property
     def measured_rps(self) -> float:
-        rows = self.runner.recent(100)
-        return float(np.mean(rows[:, RN.R_OMEGA])) / (2 * math.pi) if len(rows) else 0.0
+        rows = self.runner.recent_ticks(100)
+        return float(np.mean(rows["omega"])) / (2 * math.pi) if len(rows) else 0.0
 
     def _latency_ms(self) -> dict[str, float]:
         if not self._latency:
@@ -430,7 +431,7 @@ class Daemon:
 
     def full_window(self, seconds: float, reason: str) -> int:
         assert self.recording is not None
-        rows = self.runner.recent(round(seconds * self.cfg.control.rate_hz))
+        rows = self.runner.recent_ticks(round(seconds * self.cfg.control.rate_hz))
         self.recording.window(rows, reason)
         return len(rows)
 

@@ -30,7 +30,6 @@ from typing import Any
 import numpy as np
 
 from tvsd.config import Config
-from tvsd.control import runner as RN
 from tvsd.control.runner import Runner
 from tvsd.errors import ConfigError, DeviceError, UsageError
 from tvsd.hw.mcu.link import FaultEvent, LinkSettings, McuLink, PulseEvent, StateSample
@@ -157,7 +156,7 @@ class DriveLink:
         self._frames += 1
         j = (self._frames - min(self._frames, len(self._ticks))) % len(self._ticks)  # oldest kept
         dt = (s.mcu_ticks - int(self._ticks[j])) / self.clock_hz
-        omega = (phi - float(self._phi[j])) / dt if dt > 0 else float(self.runner.vals[RN.V_OMEGA])
+        omega = (phi - float(self._phi[j])) / dt if dt > 0 else self.runner.omega
         # When the MCU sampled it, on the host's clock: the law carries the angle forward from
         # there. Unknown before the clock sync, and for a frame placed by the fit alone.
         sampled = self.to_host(s.mcu_ticks) if s.exact else math.nan
