@@ -12,8 +12,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tvsd.config import config_dir, load_config
-from tvsd.errors import ConfigError
+from tvsd.config import Gains, config_dir, load_config
+from tvsd.errors import ConfigError, UsageError
 
 
 def test_shipped_configs_load():
@@ -153,3 +153,17 @@ def test_bad_effect_in_sil_profile_names_the_file(tmp_path):
     (tmp_path / "sil.yaml").write_text("effects: ['wobble:amplitude=1']\n")
     with pytest.raises(ConfigError, match=r"sil.yaml:1: effects: unknown effect 'wobble'"):
         load_config(path)
+
+
+@pytest.mark.parametrize(
+    "values,needle",
+    [
+        ({"Gp": -1.0, "Gd": 1.0, "Gr": 1.0, "G0": 1.0}, "Gp: must be at least 0 V, got -1.0"),
+        ({"Gp": 1.0, "Gd": 1.0, "Gr": 1.0, "G0": 0.0}, "G0: must be above 0 1/rad, got 0.0"),
+        ({"Gp": 1.0, "Gd": math.nan, "Gr": 1.0, "G0": 1.0}, "Gd: expected a finite number V"),
+    ],
+)
+def test_gains_made_in_code_obey_the_configs_rules(values, needle):
+    """The API and the command line build Gains directly: the same option rules apply."""
+    with pytest.raises(UsageError, match=re.escape(needle)):
+        Gains(**values)

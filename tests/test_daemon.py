@@ -178,6 +178,17 @@ def test_bad_requests_get_errors_and_the_daemon_stays_up(daemon):
     assert refused.returncode != 0 and "set a speed first" in refused.stderr
 
 
+def test_gains_set_are_the_gains_the_loop_runs_and_bad_ones_are_refused(daemon):
+    _, sock, _ = daemon
+    before = rpc(sock, "gains_get")["result"]
+    new = {"Gp": 5.5, "Gd": 0.25, "Gr": 17.0, "G0": 90.0}
+    assert rpc(sock, "gains_set", **new)["result"]["gains"] == new
+    assert rpc(sock, "gains_get")["result"] == new != before
+    refused = rpc(sock, "gains_set", **{**new, "G0": 0.0})["error"]
+    assert refused["code"] == -32602 and "G0: must be above 0" in refused["message"]
+    assert rpc(sock, "gains_get")["result"] == new
+
+
 def test_shutdown_over_the_api(daemon):
     proc, sock, _ = daemon
     tvsctl(sock, "shutdown")

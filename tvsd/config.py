@@ -20,7 +20,7 @@ from typing import Any
 from tvsd.errors import ConfigError, UsageError
 from tvsd.hw.can.settings import CanSettings
 from tvsd.scan.settings import ScanSettings
-from tvsd.schema import Where, build, load_yaml, option
+from tvsd.schema import Where, build, check, load_yaml, option
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -61,6 +61,9 @@ class Gains:
     Gd: float = option(doc="derivative gain", unit="V", ge=0)
     Gr: float = option(doc="robust gain", unit="V", ge=0)
     G0: float = option(doc="sharpness factor", unit="1/rad", gt=0)
+
+    def __post_init__(self) -> None:
+        check(self)  # the one rule for gains from YAML, the API and the command line
 
     def as_tuple(self) -> tuple[float, float, float, float]:
         return (self.Gp, self.Gd, self.Gr, self.G0)

@@ -184,8 +184,17 @@ def _number(tp: type, value: Any, where: Where, meta: typing.Mapping[str, Any]) 
     if tp is int and isinstance(value, float) and not value.is_integer():
         raise where.error(f"expected {kind}{unit}, got {value!r}")
     number = tp(value)
+    problem = _number_problem(number, value, meta)
+    if problem is not None:
+        raise where.error(problem)
+    return number
+
+
+def _number_problem(number: float, value: Any, meta: typing.Mapping[str, Any]) -> str | None:
+    """What is wrong with `number` under the field's rule (`value`: as the user wrote it)."""
+    unit = f" {meta['unit']}" if meta.get("unit") else ""
     if not math.isfinite(number):
-        raise where.error(f"expected a finite number{unit}, got {value!r}")
+        return f"expected a finite number{unit}, got {value!r}"
     for bound, ok, text in (
         ("gt", lambda b: number > b, "above"),
         ("ge", lambda b: number >= b, "at least"),
@@ -194,5 +203,24 @@ def _number(tp: type, value: Any, where: Where, meta: typing.Mapping[str, Any]) 
     ):
         limit = meta.get(bound)
         if limit is not None and not ok(limit):
-            raise where.error(f"must be {text} {limit:g}{unit}, got {value!r}")
-    return number
+            return f"must be {text} {limit:g}{unit}, got {value!r}"
+    return None
+
+
+def check(obj: Any) -> None:
+    """Check a settings dataclass built in code (an API request, a command-line value) against
+    the same `option` rules its YAML section is checked by: UsageError "key: problem".
+
+    Call it from `__post_init__`: then the rules hold for every instance, however it was made."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        meta = f.metadata
+        problem = None
+        if isinstance(value, bool):
+            continue
+        if isinstance(value, (int, float)):
+            problem = _number_problem(value, value, meta)
+        elif isinstance(value, str) and meta.get("choices") and value not in meta["choices"]:
+            problem = f"expected one of {', '.join(meta['choices'])}, got {value!r}"
+        if problem is not None:
+            raise UsageError(f"{f.name}: {problem}")

@@ -119,13 +119,16 @@ class Api:
         return asdict(self.d.runner.gains())
 
     async def api_gains_set(self, Gp: float, Gd: float, Gr: float, G0: float) -> dict[str, Any]:
-        if not all(math.isfinite(v) for v in (Gp, Gd, Gr, G0)) or min(Gp, Gd, Gr) < 0 or G0 <= 0:
-            raise RpcError(INVALID_PARAMS, "gains must be finite, Gp, Gd, Gr ≥ 0 and G0 > 0")
-        gains = Gains(Gp=Gp, Gd=Gd, Gr=Gr, G0=G0)
+        try:
+            gains = Gains(Gp=Gp, Gd=Gd, Gr=Gr, G0=G0)
+        except UsageError as exc:
+            raise RpcError(
+                INVALID_PARAMS, f"gains: {exc} (control.gains in the config has the same rules)"
+            ) from None
         conds = check_gains(gains, self.d.cfg.plant, self.d.cfg.control.disturbance_bound_rad_s2)
         self.d.runner.set_gains(gains)
         self.d.mark("gains", **asdict(gains))
-        return {"gains": {"Gp": Gp, "Gd": Gd, "Gr": Gr, "G0": G0}, "warnings": warnings(conds)}
+        return {"gains": asdict(gains), "warnings": warnings(conds)}
 
     async def api_imu_calibrate(self, seconds: float = 5.0) -> dict[str, Any]:
         if self.d.imu is None:
