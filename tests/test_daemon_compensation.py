@@ -69,7 +69,7 @@ def test_compensated_beta_scatters_several_times_less_than_uncompensated(daemon)
     for p in pulses:
         kind = PP.ZERO if p["channel"] == 0 else PP.OPTICAL
         rows += plain.add_pulse(kind, int(p["mcu_ticks"]))
-    uncompensated = np.array([r["beta"] for r in rows])
+    uncompensated = np.array([r.beta for r in rows])
     assert len(uncompensated) >= MIN_POINTS
     gain = _robust_std(uncompensated) / _robust_std(beta)
     assert gain >= MIN_GAIN, (

@@ -31,7 +31,7 @@ import sys
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +52,7 @@ from tvsd.hw.can.frames import Ack, Command, CommandCode, Reason
 from tvsd.hw.mcu.link import FaultEvent, PulseEvent
 from tvsd.hw.mpu6050 import DLPF_DELAY_S, SA_AXES
 from tvsd.scan.compensation import DriveModel
-from tvsd.scan.points import FLAG_NO_IMU
+from tvsd.scan.points import FLAG_NO_IMU, Point
 from tvsd.scan.pulses import OPTICAL
 from tvsd.scan.stream import PointStream
 
@@ -260,18 +260,19 @@ class Daemon:
         if ev.channel == OPTICAL:
             self._points_window.append((time.monotonic(), self.points_total))
 
-    def _publish(self, points: list[dict[str, Any]]) -> None:
-        for point in points:
+    def _publish(self, points: list[Point]) -> None:
+        for computed in points:
             # The optical pulse's host time: a client on this machine gets the latency from
             # pulse to point as time.monotonic() − t_mono on receipt.
-            point["t_mono"] = self.drive.to_host(round(float(point["t"]) * self.drive.clock_hz))
-            if int(point["flags"]) & FLAG_NO_IMU:
+            point = replace(computed, t_mono=self.drive.to_host(round(computed.t * self.drive.clock_hz)))
+            if point.flags & FLAG_NO_IMU:
                 self.points_no_imu += 1
-            if math.isfinite(point["t_mono"]):
-                self._latency.append(time.monotonic() - point["t_mono"])
+            if math.isfinite(point.t_mono):
+                self._latency.append(time.monotonic() - point.t_mono)
             self.points_total += 1
-            self.rpc.publish("points", point)
-            self.can.publish_point(point)
+            record = point.to_json()
+            self.rpc.publish("points", record)
+            self.can.publish_point(record)
             if self.recording is not None:
                 self.recording.point(point)
 

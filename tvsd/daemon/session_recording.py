@@ -27,6 +27,7 @@ from tvsd.control.runner import TICK_DTYPE
 from tvsd.recording.format import LOOP_CHANNEL, LOOP_FIELDS
 from tvsd.recording.writer import Recorder
 from tvsd.scan.points import FIELDS as POINT_FIELDS
+from tvsd.scan.points import Point
 
 RECORD_PERIOD_S = 1e-3  # 10 kHz ticks → a 1 kHz recording (DESIGN.md's sample_rate_hz)
 REFERENCE_FIELDS = (("t", "<f8"), ("phi_ref", "<f8"), ("omega_ref", "<f8"), ("u_ff", "<f8"))
@@ -91,8 +92,8 @@ class SessionRecording:
     def pulse(self, t_host: float, mcu_ticks: int, channel: int) -> None:
         self.pulses.append({"t_host": t_host, "mcu_ticks": mcu_ticks, "channel": channel})
 
-    def point(self, point: dict[str, Any]) -> None:
-        self.points.append({f: point[f] for f in self.points.dtype.names or ()})
+    def point(self, point: Point) -> None:
+        self.points.append({f: getattr(point, f) for f in self.points.dtype.names or ()})
 
     def imu_batch(
         self, sensor: str, k: np.ndarray, t: np.ndarray, accel: np.ndarray, gyro: np.ndarray
