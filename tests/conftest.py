@@ -66,7 +66,7 @@ def wait_for(
         if _met(last, ok):
             return last
         if abort is not None and (why := abort(last)) is not None:
-            raise AssertionError(f"gave up waiting for {_name(what, read)} (last seen: {last!r}): {why}")
+            raise AssertionError(f"gave up waiting for {_name(what, read)}: {why} (last seen: {last!r})")
         if time.monotonic() >= deadline:
             raise _timed_out(what, read, timeout, last)
         time.sleep(interval)

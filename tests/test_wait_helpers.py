@@ -26,7 +26,7 @@ def test_without_a_name_the_waiting_line_is_quoted() -> None:
 
 
 def test_abort_fails_at_once_with_its_reason() -> None:
-    with pytest.raises(AssertionError, match=r"gave up waiting for spin \(last seen: 'fault'\): safe state"):
+    with pytest.raises(AssertionError, match=r"gave up waiting for spin: safe state \(last seen: 'fault'\)"):
         wait_for(lambda: "fault", 60.0, "spin", ok=lambda s: s == "idle", abort=lambda s: "safe state")
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from tvsd import __version__
+from tvsd.daemon.state import DaemonState
 from tvsd.errors import EXIT_OK, EXIT_USAGE, TvsdError
 
 if TYPE_CHECKING:
@@ -116,7 +117,7 @@ async def _serve(args: argparse.Namespace, cfg: Config, config_text: str) -> int
 
 
 async def _demo(daemon: Daemon) -> None:
-    while daemon.state == "starting":
+    while daemon.state == DaemonState.STARTING:
         await asyncio.sleep(0.1)
     await daemon.api.api_speed(DEMO_RPS)
     while abs(daemon.measured_rps - DEMO_RPS) > 0.5:

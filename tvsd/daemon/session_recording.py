@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from tvsd.control.runner import TICK_DTYPE
+from tvsd.control.runner import TICK_DTYPE, Runner
 from tvsd.recording.format import LOOP_CHANNEL, LOOP_FIELDS
 from tvsd.recording.writer import Recorder
 from tvsd.scan.points import FIELDS as POINT_FIELDS
@@ -42,8 +42,10 @@ IMU_SENSORS = {"pl": 0, "sa": 1}
 class SessionRecording:
     """One recording of the running daemon; every method is for the event-loop thread."""
 
-    def __init__(self, path: Path, config_text: str) -> None:
+    def __init__(self, path: Path, config_text: str, *, from_tick: int = 0) -> None:
+        """Record into `path` (created), the control ticks from tick number `from_tick` on."""
         self.path = path
+        self._last_tick = from_tick
         self.recorder = Recorder(path, config_text)
         r = self.recorder
         self.loop = r.channel(LOOP_CHANNEL, list(LOOP_FIELDS))
@@ -58,6 +60,14 @@ class SessionRecording:
     @property
     def error(self) -> BaseException | None:
         return self.recorder.error
+
+    def drain(self, runner: Runner) -> None:
+        """The control ticks since the last drain (as many as the runner still keeps)."""
+        ticks = runner.ticks
+        n = min(ticks - self._last_tick, runner.ring_size)
+        self._last_tick = ticks
+        if n > 0:
+            self.loop_ticks(runner.recent_ticks(n))
 
     def loop_ticks(self, rows: np.ndarray) -> None:
         """Average ticks (TICK_DTYPE rows) into RECORD_PERIOD_S bins of their own time stamps: a
