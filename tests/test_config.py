@@ -122,8 +122,10 @@ def test_arbitrary_text_never_raises_anything_but_config_error(tmp_path, text):
         (lambda d: d.__setitem__("sil_profile", "missing.yaml"), "sil_profile: no such file"),
         (
             lambda d: d["imu"].__setitem__("gyro_fs_dps", 300),
-            "imu.gyro_fs_dps = 300: one of (250, 500, 1000, 2000)",
+            "imu.gyro_fs_dps: must be one of (250, 500, 1000, 2000), got 300",
         ),
+        (lambda d: d["imu"].__setitem__("poll_interval_s", 0.2), "imu.poll_interval_s: must be at most 0.05 s"),
+        (lambda d: d["imu"].__setitem__("calibration_file", 3), "imu.calibration_file: expected a file path"),
         (lambda d: d["imu"].__setitem__("sa_axis", "w"), "imu.sa_axis: expected one of x, y, z"),
         (
             lambda d: d["scan"].__setitem__("phi_max_deg", 1.0),
@@ -145,6 +147,17 @@ def test_error_line_points_at_the_offending_key(tmp_path):
     path.write_text(text)
     line = next(n for n, ln in enumerate(text.splitlines(), 1) if ln.startswith("  J: -"))
     with pytest.raises(ConfigError, match=rf":{line}: plant.J"):
+        load_config(path)
+
+
+def test_a_devices_own_rule_points_at_its_key_line(tmp_path):
+    """The MPU6050's rules (checked by ImuSettings itself, not by a key's bounds) name the key and
+    its line, like every other config error."""
+    text = (config_dir() / "tvsd.yaml").read_text().replace("  gyro_fs_dps: 250", "  gyro_fs_dps: 300")
+    path = _write(tmp_path, None)
+    path.write_text(text)
+    line = next(n for n, ln in enumerate(text.splitlines(), 1) if ln.startswith("  gyro_fs_dps: 300"))
+    with pytest.raises(ConfigError, match=rf":{line}: imu.gyro_fs_dps: must be one of \(250"):
         load_config(path)
 
 

@@ -15,10 +15,10 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from tvsd.errors import ConfigError, UsageError
 from tvsd.hw.can.settings import CanSettings
+from tvsd.hw.mpu6050 import ImuSettings
 from tvsd.scan.settings import ScanSettings
 from tvsd.schema import Where, build, check, load_yaml, option
 
@@ -104,38 +104,6 @@ class GeometryConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
-class ImuConfig:
-    """The `imu:` section; `settings()` gives the driver's ImuSettings (which checks the MPU6050's
-    own rules: rates the sample-rate divider can make, ranges the chip has, DLPF vs rate)."""
-
-    bus: int = option(1, doc="I2C bus number (/dev/i2c-N)", ge=0)
-    address_pl: int = option(0x68, doc="PL sensor address (AD0 low)", ge=0x68, le=0x69)
-    address_sa: int = option(0x69, doc="SA sensor address (AD0 high)", ge=0x68, le=0x69)
-    sample_rate_hz: float = option(1000.0, doc="FIFO rate (MODEL-NOTES §4: ≥ 1 kHz)", unit="Hz", gt=0)
-    dlpf_cfg: int = option(1, doc="digital low-pass setting 1..6 (1: 188 Hz)", ge=0, le=7)
-    gyro_fs_dps: int = option(250, doc="gyro full scale", unit="°/s", gt=0)
-    accel_fs_g: int = option(4, doc="accelerometer full scale", unit="g", gt=0)
-    sa_axis: str = option("x", doc="sensor axis along the SA shaft", choices=("x", "y", "z"))
-    calibration_file: str = option("/var/lib/tvsd/imu-calibration.json", doc="bias calibration file")
-    poll_interval_s: float = option(0.02, doc="FIFO poll period", unit="s", gt=0)
-
-    def settings(self) -> Any:
-        from tvsd.hw.mpu6050 import ImuSettings
-
-        return ImuSettings(
-            bus=self.bus,
-            addresses={"pl": self.address_pl, "sa": self.address_sa},
-            sample_rate_hz=self.sample_rate_hz,
-            dlpf_cfg=self.dlpf_cfg,
-            gyro_fs_dps=self.gyro_fs_dps,
-            accel_fs_g=self.accel_fs_g,
-            sa_axis=self.sa_axis,
-            calibration_file=Path(self.calibration_file),
-            poll_interval_s=self.poll_interval_s,
-        )
-
-
-@dataclass(frozen=True, kw_only=True)
 class VibrationConfig:
     model: str = option("ou", doc="Δv model (MODEL-NOTES §4)", choices=("off", "sde", "ou"))
     sigma_v: float = option(0.3381, doc="σv: std (ou, rad/s²) or SDE intensity (sde, rad/s^1.5)", ge=0)
@@ -209,7 +177,7 @@ class Config:
     sil: SilConfig | None = option(None, doc="SIL profile inline (instead of sil_profile)")
     reproduction: Reproduction | None = option(None, doc="paper figures to reproduce")
     scan: ScanSettings = option(ScanSettings(), doc="scan pipeline (baseline from geometry)")
-    imu: ImuConfig = option(ImuConfig(), doc="the two MPU6050s")
+    imu: ImuSettings = option(ImuSettings(), doc="the two MPU6050s")
     can: CanSettings = option(CanSettings(), doc="CAN bridge to a robot (off by default)")
     devices: DevicesConfig = option(DevicesConfig(), doc="hardware or SIL backend per device")
     mcu: McuConfig = option(McuConfig(), doc="the MCU's serial link")
@@ -251,11 +219,6 @@ def load_config(path: str | Path | None = None, *, params: str | None = None) ->
             "(one baseline for the whole scanner)"
         )
     cfg = dataclasses.replace(cfg, scan=dataclasses.replace(cfg.scan, baseline_m=cfg.geometry.baseline_m))
-    try:
-        cfg.imu.settings()  # the driver's own rules, with this file's line
-    except UsageError as exc:
-        line = data.key_lines.get("imu", data.line)
-        raise ConfigError(f"{path}:{line}: {exc}") from None
     if cfg.sil_profile is not None:
         profile = path.parent / cfg.sil_profile
         if not profile.is_file():

@@ -41,6 +41,16 @@ def option(
     return field(default=default, metadata=meta)
 
 
+class FieldError(UsageError):
+    """A value breaks a settings dataclass's own rule (checked in its `__post_init__`): names the
+    key, so a config file's error points at that key's line."""
+
+    def __init__(self, key: str, problem: str) -> None:
+        super().__init__(f"{key}: {problem}")
+        self.key = key
+        self.problem = problem
+
+
 class LinedDict(dict[str, Any]):
     """A YAML mapping that remembers the line of each key (1-based) and of itself."""
 
@@ -131,6 +141,9 @@ def build(cls: type, data: Any, where: Where) -> Any:
         return cls(**values)
     except ConfigError:
         raise
+    except FieldError as exc:
+        line = lines.get(exc.key, where.line)
+        raise Where(where.path, line, _join(where.key, exc.key)).error(exc.problem) from None
     except UsageError as exc:
         # A rule across keys (e.g. phi_min_deg < phi_max_deg), checked by the dataclass itself:
         # point at the section, since no single key is wrong on its own.
@@ -164,6 +177,10 @@ def convert(tp: Any, value: Any, where: Where, meta: typing.Mapping[str, Any]) -
         if not isinstance(value, bool):
             raise where.error(f"expected true or false, got {value!r}")
         return value
+    if tp is Path:
+        if not isinstance(value, str) or not value:
+            raise where.error(f"expected a file path, got {value!r}")
+        return Path(value)
     if tp is str:
         if not isinstance(value, str):
             raise where.error(f"expected text, got {value!r}")
@@ -223,4 +240,4 @@ def check(obj: Any) -> None:
         elif isinstance(value, str) and meta.get("choices") and value not in meta["choices"]:
             problem = f"expected one of {', '.join(meta['choices'])}, got {value!r}"
         if problem is not None:
-            raise UsageError(f"{f.name}: {problem}")
+            raise FieldError(f.name, problem)

@@ -74,7 +74,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         from dataclasses import replace
 
         # the twins' calibration lives with the SIL data: a board's file must not apply to them
-        imu = replace(cfg.imu, calibration_file=str(args.data_dir / "imu-calibration-sil.json"))
+        imu = replace(cfg.imu, calibration_file=args.data_dir / "imu-calibration-sil.json")
         cfg = replace(cfg, devices=replace(cfg.devices, mcu="sil", imu="sil"), imu=imu)
     config_path = args.config or config_dir() / "tvsd.yaml"
     try:
