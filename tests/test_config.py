@@ -124,7 +124,10 @@ def test_arbitrary_text_never_raises_anything_but_config_error(tmp_path, text):
             lambda d: d["imu"].__setitem__("gyro_fs_dps", 300),
             "imu.gyro_fs_dps: must be one of (250, 500, 1000, 2000), got 300",
         ),
-        (lambda d: d["imu"].__setitem__("poll_interval_s", 0.2), "imu.poll_interval_s: must be at most 0.05 s"),
+        (
+            lambda d: d["imu"].__setitem__("poll_interval_s", 0.2),
+            "imu.poll_interval_s: must be at most 0.05 s",
+        ),
         (lambda d: d["imu"].__setitem__("calibration_file", 3), "imu.calibration_file: expected a file path"),
         (lambda d: d["imu"].__setitem__("sa_axis", "w"), "imu.sa_axis: expected one of x, y, z"),
         (

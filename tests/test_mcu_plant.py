@@ -18,7 +18,7 @@ import pytest
 from conftest import until
 
 from tvsd.config import Config, VibrationConfig, load_config
-from tvsd.hw.mcu.link import LinkSettings, McuLink, PulseEvent, StateSample
+from tvsd.hw.mcu.link import McuLink, McuSettings, PulseEvent, StateSample
 from tvsd.scan.geometry import doe_b_target, inverse
 from tvsd.sim import mcu_plant as mp
 from tvsd.sim import virtual_mcu as vm
@@ -62,7 +62,7 @@ async def spin(
     at a fraction of SPEED."""
     # link_timeout 10 s: a stall of this process (it paces the plant) must not read as a link loss,
     # which would break the chain of stamps that `exact` and the 1 ms steps below check
-    settings = LinkSettings(port=plant.mcu.port, link_timeout_s=10.0)
+    settings = McuSettings(port=plant.mcu.port, link_lost_ms=10_000)
     link = McuLink(settings, on_state=states.append, on_pulse=pulses.append)
     async with link:
         # 2 s of MCU time: a heartbeat late on a loaded host must not trip the watchdog

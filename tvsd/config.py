@@ -18,6 +18,7 @@ from pathlib import Path
 
 from tvsd.errors import ConfigError, UsageError
 from tvsd.hw.can.settings import CanSettings
+from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mpu6050 import ImuSettings
 from tvsd.scan.settings import ScanSettings
 from tvsd.schema import Where, build, check, load_yaml, option
@@ -150,24 +151,6 @@ class DevicesConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
-class McuConfig:
-    """The `mcu:` section: the serial link (tvsd/hw/mcu, firmware/PROTOCOL.md)."""
-
-    port: str = option("/dev/serial0", doc="serial port of the MCU")
-    baud: int = option(2_000_000, doc="line rate; the firmware's", unit="bit/s", ge=9600)
-    state_rate_hz: float = option(
-        2500.0, doc="state frames per second: the ATmega328P carries 2.5 kHz", unit="Hz", ge=100, le=10000
-    )
-    encoder_counts_per_rev: int = option(8192, doc="encoder counts per shaft revolution (×4)", ge=4)
-    watchdog_ms: int = option(
-        50, doc="firmware fail-safe: no heartbeat this long → PWM and laser off", unit="ms", ge=5, le=1000
-    )
-    link_timeout_ms: float = option(
-        40.0, doc="no state frame this long → the control thread holds PWM 0", unit="ms", gt=0, le=50
-    )
-
-
-@dataclass(frozen=True, kw_only=True)
 class Config:
     plant: PlantParams = option(doc="drive parameters")
     drive: DriveConfig = option(DriveConfig())
@@ -180,7 +163,7 @@ class Config:
     imu: ImuSettings = option(ImuSettings(), doc="the two MPU6050s")
     can: CanSettings = option(CanSettings(), doc="CAN bridge to a robot (off by default)")
     devices: DevicesConfig = option(DevicesConfig(), doc="hardware or SIL backend per device")
-    mcu: McuConfig = option(McuConfig(), doc="the MCU's serial link")
+    mcu: McuSettings = option(McuSettings(), doc="the MCU: serial link, rates, fail-safe times")
 
     @property
     def sil_or_default(self) -> SilConfig:

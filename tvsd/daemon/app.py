@@ -317,7 +317,7 @@ class Daemon:
             self.mark("mcu_link", up=True)
             return
         self._check_control_fault()  # the control thread's stale check latched first (40 < 50 ms)
-        cause = "MCU link lost: no frame for 50 ms"
+        cause = f"MCU link lost: no frame for {self.cfg.mcu.link_lost_ms:g} ms"
         if self.state not in (S.FAULT, S.STOPPING):
             self._enter_fault(FaultKind.MCU_LINK_LOST, cause, "safe state: PWM 0")
         else:

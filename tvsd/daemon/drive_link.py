@@ -15,9 +15,9 @@ the point stream's drive model). So the exchange with the MCU runs at the state 
 the ATmega328P), one control tick (0.1 ms) behind at most, and the 10 kHz kernel never waits for it.
 
 Safety, in three layers: the control thread holds PWM 0 once the newest state frame is older than
-cfg.mcu.link_timeout_ms (40 ms: tvsd.control.runner, FAULT_STALE); the link reports the loss
-after 50 ms without any frame (on_link(False)); the firmware cuts PWM and laser watchdog_ms after
-the last heartbeat (heartbeats go every watchdog_ms / 4).
+cfg.mcu.link_timeout_ms (40 ms: tvsd.control.runner, LoopFault.STALE); the link reports the loss
+after cfg.mcu.link_lost_ms (50 ms) without any frame (on_link(False)); the firmware cuts PWM and
+laser watchdog_ms after the last heartbeat (heartbeats go every watchdog_ms / 4).
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -32,7 +33,7 @@ import numpy as np
 from tvsd.config import Config
 from tvsd.control.runner import Runner
 from tvsd.errors import ConfigError, DeviceError, UsageError
-from tvsd.hw.mcu.link import FaultEvent, LinkSettings, McuLink, PulseEvent, StateSample
+from tvsd.hw.mcu.link import FaultEvent, McuLink, PulseEvent, StateSample
 from tvsd.hw.mcu.spec import CONTROL_TICK_HZ
 from tvsd.hw.mcu.steppers import Steppers
 
@@ -106,11 +107,8 @@ class DriveLink:
             self.plant.step()  # loads the plant kernel here, not as a GIL stall in its thread
             self.plant.start()
             port = self.plant.mcu.port
-        settings = LinkSettings(
-            port=port, baud=m.baud, heartbeat_period_s=m.watchdog_ms / 4e3, link_timeout_s=0.05
-        )
         link = McuLink(
-            settings,
+            replace(m, port=port),
             on_state=self._on_state,
             on_pulse=self.on_pulse,
             on_fault=self.on_fault,
