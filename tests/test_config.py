@@ -183,3 +183,22 @@ def test_gains_made_in_code_obey_the_configs_rules(values, needle):
     """The API and the command line build Gains directly: the same option rules apply."""
     with pytest.raises(UsageError, match=re.escape(needle)):
         Gains(**values)
+
+
+def test_the_daemons_times_and_limits_come_from_the_config(tmp_path):
+    cfg = load_config()
+    d = cfg.daemon
+    assert (d.status_period_s, d.drain_period_s, d.fault_window_s, d.home_timeout_s, d.max_rps) == (
+        1.0, 0.02, 2.0, 30.0, 60.0
+    )  # fmt: skip
+    assert cfg.mcu.link_lost_ms == 50.0 and cfg.can.handler_timeout_s == 2.0 and cfg.imu.calibrate_max_s == 60
+    data = _base()
+    data["daemon"] = {"max_rps": 0}
+    with pytest.raises(ConfigError, match=re.escape("daemon.max_rps: must be above 0 rev/s")):
+        load_config(_write(tmp_path, data))
+    data = _base()
+    data["mcu"] = {"link_timeout_ms": 60}
+    with pytest.raises(
+        ConfigError, match=re.escape("mcu.link_timeout_ms: must be at most link_lost_ms (50 ms)")
+    ):
+        load_config(_write(tmp_path, data))

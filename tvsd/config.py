@@ -151,6 +151,30 @@ class DevicesConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class DaemonSettings:
+    """The `daemon:` section: tvsd's own periods, bounds and limits (tvsd/daemon/app.py)."""
+
+    status_period_s: float = option(
+        1.0, doc="status published, faults checked, systemd watchdog fed this often", unit="s", gt=0, le=10
+    )
+    drain_period_s: float = option(
+        0.02, doc="the control thread's ticks move into the recording this often", unit="s", gt=0, le=1
+    )
+    fault_window_s: float = option(
+        2.0, doc="full-rate control ticks recorded before each fault (the thread keeps 6.5 s)", unit="s", ge=0
+    )
+    fault_log_size: int = option(200, doc="faults listed (older ones are only counted)", ge=1)
+    home_timeout_s: float = option(30.0, doc="the stepper axes home within this after start", unit="s", gt=0)
+    max_rps: float = option(60.0, doc="speed requests beyond ±this are refused", unit="rev/s", gt=0)
+    stop_margin_s: float = option(
+        1.0, doc="at stop, the ramp down may take this much longer than the ramp says", unit="s", ge=0
+    )
+    stopped_rps: float = option(
+        0.5, doc="at stop, the aperture counts as stopped below this", unit="rev/s", gt=0
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
 class Config:
     plant: PlantParams = option(doc="drive parameters")
     drive: DriveConfig = option(DriveConfig())
@@ -164,6 +188,7 @@ class Config:
     can: CanSettings = option(CanSettings(), doc="CAN bridge to a robot (off by default)")
     devices: DevicesConfig = option(DevicesConfig(), doc="hardware or SIL backend per device")
     mcu: McuSettings = option(McuSettings(), doc="the MCU: serial link, rates, fail-safe times")
+    daemon: DaemonSettings = option(DaemonSettings(), doc="tvsd's own periods and limits")
 
     @property
     def sil_or_default(self) -> SilConfig:

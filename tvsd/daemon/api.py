@@ -28,9 +28,6 @@ from tvsd.scan import geometry
 if TYPE_CHECKING:
     from tvsd.daemon.app import Daemon
 
-MAX_RPS = 60.0
-MAX_WINDOW_S = 6.0  # the control thread's ring holds 65536 ticks = 6.5 s
-
 
 def _rpc_error(exc: TvsdError) -> RpcError:
     return RpcError(INVALID_PARAMS if isinstance(exc, UsageError) else DEVICE_ERROR, str(exc))
@@ -60,10 +57,12 @@ class Api:
 
     async def api_speed(self, rps: float) -> dict[str, Any]:
         self._refuse_in_fault()
-        if not math.isfinite(rps) or abs(rps) > MAX_RPS:
+        max_rps = self.d.cfg.daemon.max_rps
+        if not math.isfinite(rps) or abs(rps) > max_rps:
             raise RpcError(
                 INVALID_PARAMS,
-                f"rps {rps:g} is outside ±{MAX_RPS:g} rev/s (the drive holds 25 at 5.9 V of 12)",
+                f"rps {rps:g} is outside ±{max_rps:g} rev/s (daemon.max_rps; the drive holds 25 at "
+                "5.9 V of 12)",
             )
         self.d.set_speed(rps)
         return {"rps_setpoint": rps}
@@ -127,8 +126,9 @@ class Api:
             raise RpcError(
                 STATE_ERROR, "no IMU is running (devices.imu is off or it failed to start: see faults)"
             )
-        if not 1 <= seconds <= 60:
-            raise RpcError(INVALID_PARAMS, f"seconds {seconds:g}: use 1 .. 60")
+        longest = self.d.cfg.imu.calibrate_max_s
+        if not 1 <= seconds <= longest:
+            raise RpcError(INVALID_PARAMS, f"seconds {seconds:g}: use 1 .. {longest:g} (imu.calibrate_max_s)")
         if abs(self.d.measured_rps) > 0.05:
             raise RpcError(
                 STATE_ERROR, "the aperture is turning: stop it (tvsctl speed 0) to calibrate at rest"
@@ -156,10 +156,9 @@ class Api:
     async def api_record_window(self, seconds: float = 1.0) -> dict[str, Any]:
         if self.d.recording is None:
             raise RpcError(STATE_ERROR, "not recording: start a recording first (tvsctl record start)")
-        if not 0 < seconds <= MAX_WINDOW_S:
-            raise RpcError(
-                INVALID_PARAMS, f"seconds {seconds:g}: the control thread keeps 0 .. {MAX_WINDOW_S:g} s"
-            )
+        kept = math.floor(self.d.runner.ring_size / self.d.cfg.control.rate_hz)  # 6 s at 10 kHz
+        if not 0 < seconds <= kept:
+            raise RpcError(INVALID_PARAMS, f"seconds {seconds:g}: the control thread keeps 0 .. {kept:g} s")
         ticks = self.d.record_window(seconds, "request")
         return {"ticks": ticks, "recording": str(self.d.recording.path)}
 

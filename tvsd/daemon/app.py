@@ -46,7 +46,7 @@ from tvsd.config import Config, Gains
 from tvsd.control.runner import LoopFault, Runner
 from tvsd.control.setup import Setup
 from tvsd.daemon.api import Api
-from tvsd.daemon.drive_link import HOME_TIMEOUT_S, DriveLink
+from tvsd.daemon.drive_link import DriveLink
 from tvsd.daemon.faults import LOOP_FAULTS, FaultEntry, FaultKind, FaultLog
 from tvsd.daemon.notify import Notifier
 from tvsd.daemon.rpc import RpcServer
@@ -61,9 +61,6 @@ from tvsd.scan.points import Point
 from tvsd.scan.pulses import OPTICAL
 
 S = DaemonState
-DRAIN_S = 0.02  # how often recorded ticks move on
-FAULT_WINDOW_S = 2.0  # full-rate control ticks recorded before each fault
-FAULT_LOG_SIZE = 200  # faults listed; older ones are only counted
 
 
 class Daemon:
@@ -104,7 +101,7 @@ class Daemon:
         self.can = CanBridge(cfg.can, self.api.can_command)
         self._state = StateMachine(on_change=self._state_changed)
         self.target_rps = 0.0
-        self.faults = FaultLog(FAULT_LOG_SIZE)
+        self.faults = FaultLog(cfg.daemon.fault_log_size)
         self.recording: SessionRecording | None = None
         self.scan: ScanSession | None = None  # while scanning
         self.aim_deg = (60.0, 0.0)  # φ, γ: DoE B's middle target
@@ -171,7 +168,8 @@ class Daemon:
 
     async def _initial_aim(self) -> None:
         """Once the axes are homed, point the laser at the configured aim."""
-        deadline = time.monotonic() + HOME_TIMEOUT_S
+        timeout = self.cfg.daemon.home_timeout_s
+        deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             try:
                 self.aim(*self.aim_deg)
@@ -180,7 +178,7 @@ class Daemon:
                 await asyncio.sleep(0.1)
         self._fault(
             FaultKind.HOMING,
-            f"stepper axes not homed within {HOME_TIMEOUT_S:g} s",
+            f"stepper axes not homed within {timeout:g} s (daemon.home_timeout_s)",
             "laser not aimed: check the home switches and the stepper drivers, then aim again",
         )
 
@@ -193,9 +191,10 @@ class Daemon:
         # Ramp the aperture down along the speed reference, bounded by the time the ramp needs.
         if self.drive.link is not None and not self.runner.fault:
             self.runner.scan(0.0)
-            ramp_s = abs(self.measured_rps) / self.cfg.control.scan_accel_rps2 + 1.0
+            d = self.cfg.daemon
+            ramp_s = abs(self.measured_rps) / self.cfg.control.scan_accel_rps2 + d.stop_margin_s
             deadline = time.monotonic() + ramp_s
-            while abs(self.measured_rps) > 0.5 and time.monotonic() < deadline:
+            while abs(self.measured_rps) > d.stopped_rps and time.monotonic() < deadline:
                 await asyncio.sleep(0.05)
         self.runner.idle()
         await self.drive.close()  # PWM 0 and laser off on the wire
@@ -254,7 +253,7 @@ class Daemon:
     # --- periodic work -----------------------------------------------------------------------------
     async def _drain(self) -> None:
         while True:
-            await asyncio.sleep(DRAIN_S)
+            await asyncio.sleep(self.cfg.daemon.drain_period_s)
             if self.recording is not None:
                 self.recording.drain(self.runner)
                 self._check_recording()
@@ -263,7 +262,7 @@ class Daemon:
         start = time.monotonic()
         last_ticks = -1
         while True:
-            await asyncio.sleep(1.0)
+            await asyncio.sleep(self.cfg.daemon.status_period_s)
             self._check_control_fault()
             status = self.status()
             record = status.to_json()
@@ -385,7 +384,7 @@ class Daemon:
         self._state.go(S.FAULT)
         self._fault(kind, cause, action, safe_after_ms)
         if self.recording is not None:
-            self.record_window(FAULT_WINDOW_S, cause)
+            self.record_window(self.cfg.daemon.fault_window_s, cause)
 
     def _new_scan(self) -> None:
         """A new scan session at the current aim: IMU-compensated while the IMU is ok (ImuFeed

@@ -40,7 +40,6 @@ from tvsd.hw.mcu.steppers import Steppers
 SPEED_WINDOW_S = 2e-3
 SENT_HISTORY = 2048  # PWM frames kept: 0.8 s at 2.5 kHz (the point stream looks back < 0.5 s)
 SIL_TARGET_RANGE_M = 2.0  # the SIL scene: a surface 2 m from the PL (tvsd/sim/scene.py)
-HOME_TIMEOUT_S = 30.0
 SIL_FAULTS = ("link_loss", "link_restore")
 
 

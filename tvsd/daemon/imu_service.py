@@ -60,7 +60,6 @@ NAMES = ("pl", "sa")
 BACKENDS = ("hardware", "sil", "off")
 STATES = ("off", "ok", "starting", "degraded", "lost")  # by severity: the overall is the worst
 LOST_POLLS = 5
-CALIBRATE_MAX_S = 60.0
 INJECT_KINDS = ("loss", "restore")
 SNAPSHOT_S = 0.2  # how often the reader thread refreshes a sensor's fitted rate and loss count
 
@@ -333,9 +332,10 @@ class ImuService:
         "accel_rest_m_s2", "samples", "chip"}}}."""
         rate = self.settings.sample_rate_hz
         least = cal.MIN_SAMPLES / (0.9 * rate)  # the sensor clock may run 10 % slow
-        if not (isinstance(seconds, (int, float)) and least <= seconds <= CALIBRATE_MAX_S):
+        longest = self.settings.calibrate_max_s
+        if not (isinstance(seconds, (int, float)) and least <= seconds <= longest):
             raise UsageError(
-                f"seconds = {seconds!r}: give {math.ceil(least * 10) / 10:g} .. {CALIBRATE_MAX_S:g} s "
+                f"seconds = {seconds!r}: give {math.ceil(least * 10) / 10:g} .. {longest:g} s "
                 f"(at least {cal.MIN_SAMPLES} samples at {rate:g} Hz)"
             )
         if self.reader is None:

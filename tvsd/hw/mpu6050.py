@@ -108,6 +108,9 @@ class ImuSettings:
     calibration_file: Path = option(Path("/var/lib/tvsd/imu-calibration.json"), doc="bias calibration file")
     # 20 frames per poll at 1 kHz; the FIFO holds 85 (85 ms), so 50 ms leaves margin
     poll_interval_s: float = option(0.02, doc="FIFO poll period", unit="s", ge=0.001, le=0.05)
+    calibrate_max_s: float = option(
+        60.0, doc="a bias calibration at rest takes at most this long", unit="s", gt=0, le=3600
+    )
     lost_margin_s: float = option(
         0.1, doc="a sensor is lost after 5 poll periods and this long without a sample", unit="s", gt=0
     )
