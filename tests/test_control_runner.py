@@ -1,4 +1,4 @@
-"""The 10 kHz control runner: function, never timing (DESIGN.md: these machines wake threads late).
+"""The 10 kHz control runner: function, never timing (docs/architecture.md: these machines wake threads late).
 
 Every assertion here holds however late the machine wakes the thread: tick counts, the law's
 arithmetic on what was recorded, the plant's physics over real elapsed time, the overrun logic

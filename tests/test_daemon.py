@@ -148,7 +148,7 @@ def test_spin_scan_points_record_export_and_orderly_stop(daemon, tmp_path):
         rec = read_recording(out)
         assert rec.sample_rate_hz == pytest.approx(1000, rel=0.01) and abs(rec.omega[-1] / 6.2832 - 20) < 1
     else:
-        # A stall of the shared machine longer than a 1 ms bin leaves a gap (DESIGN.md: ms stalls
+        # A stall of the shared machine longer than a 1 ms bin leaves a gap (docs/architecture.md: ms stalls
         # happen); export then refuses with its documented one-line message, exit 2.
         assert exported.returncode == 2 and "samples missing" in exported.stderr
     proc.send_signal(signal.SIGTERM)

@@ -1,10 +1,10 @@
 """What the daemon records, channel by channel, into one Recorder (tvsd/recording/writer.py).
 
 Channels of a daemon recording (numpy structured rows; `tvsctl export REC --csv` writes `loop` as
-DESIGN.md's recording CSV, and `tvsd.recording.writer.open_recording(REC).channels[name]` gives
+docs/architecture.md's recording CSV, and `tvsd.recording.writer.open_recording(REC).channels[name]` gives
 any of them to numpy/pandas users):
 
-- `loop`       1 kHz bins of the control thread's ticks: t, u, omega, phi (DESIGN.md's CSV).
+- `loop`       1 kHz bins of the control thread's ticks: t, u, omega, phi (docs/architecture.md's CSV).
 - `loop_full`  every 10 kHz tick of a window: on request (`record_window`) and on every fault,
                the seconds before it (the control thread keeps 6.5 s); the fields of the runner's
                TICK_DTYPE (tvsd.control.runner).
@@ -29,7 +29,7 @@ from tvsd.recording.writer import Recorder
 from tvsd.scan.points import FIELDS as POINT_FIELDS
 from tvsd.scan.points import Point
 
-RECORD_PERIOD_S = 1e-3  # 10 kHz ticks → a 1 kHz recording (DESIGN.md's sample_rate_hz)
+RECORD_PERIOD_S = 1e-3  # 10 kHz ticks → a 1 kHz recording (docs/architecture.md: sample_rate_hz)
 REFERENCE_FIELDS = (("t", "<f8"), ("phi_ref", "<f8"), ("omega_ref", "<f8"), ("u_ff", "<f8"))
 PULSE_FIELDS = (("t_host", "<f8"), ("mcu_ticks", "<i8"), ("channel", "<i2"))
 IMU_FIELDS = (
