@@ -46,6 +46,13 @@ def test_the_table_covers_every_state_and_the_contract_strings() -> None:
     assert all(S.STOPPING in TRANSITIONS[s] for s in S if s != S.STOPPING)  # shutdown from anywhere
 
 
+def test_can_answers_as_go_would() -> None:
+    for old in S:
+        for new in S:
+            assert _at(old).can(new) == (new == old or new in TRANSITIONS[old])
+    assert not _at(S.STOPPING).can(S.SCANNING) and _at(S.SPINNING).can(S.SCANNING)
+
+
 def test_staying_put_is_silent() -> None:
     m = _at(S.FAULT)
     m.on_change = lambda a, b: pytest.fail("no change")

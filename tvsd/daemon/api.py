@@ -51,6 +51,8 @@ class Api:
                 "the drive is in its safe state after a fault; "
                 "clear it with faults_clear (tvsctl faults --clear) first",
             )
+        if self.d.state == DaemonState.STOPPING:
+            raise RpcError(STATE_ERROR, "the daemon is stopping: the aperture ramps down; start it again")
 
     async def api_status(self) -> dict[str, Any]:
         return self.d.status().to_json()

@@ -215,6 +215,8 @@ class Daemon:
 
     def start_scan(self) -> None:
         """Laser on, a point stream at the current aim."""
+        if not self._state.can(S.SCANNING):
+            self._state.go(S.SCANNING)  # refused, naming both states: before the laser goes on
         self.drive.laser(True)
         self._new_scan()
         self._state.go(S.SCANNING)

@@ -65,5 +65,6 @@ class StateMachine:
         if self.on_change is not None:
             self.on_change(old, new)
 
-    def is_(self, *states: DaemonState) -> bool:
-        return self.state in states
+    def can(self, new: DaemonState) -> bool:
+        """Whether `go(new)` would be taken (check before acting on the devices)."""
+        return new == self.state or new in TRANSITIONS[self.state]
