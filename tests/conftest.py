@@ -1,8 +1,92 @@
-"""Suite-wide settings."""
+"""Suite-wide settings, and the wait helpers every test that waits for an outcome uses.
+
+Tests wait for outcomes, polled against a deadline, never for a fixed time: these machines wake a
+sleeping thread late by ms at times (docs/architecture.md), so a sleep long enough here is too short
+on a loaded CI machine. `wait_for` (a thread) and `until` (a coroutine) poll `read()` until its
+value is truthy (or passes `ok`, when given); on timeout they fail naming what they waited for and
+the last value read. Import them from here: `from conftest import until, wait_for` (pytest puts
+tests/ on sys.path).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import inspect
+import time
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 from hypothesis import settings
 
 # Property tests check logic, not speed: Hypothesis's default 200 ms per-example deadline would
-# fail them on a stall of the shared 2-core CI machine (DESIGN.md: ms stalls happen, 50+ ms at times).
+# fail them on a stall of the shared 2-core CI machine (ms stalls happen, 50+ ms at times).
 settings.register_profile("tvsd", deadline=None)
 settings.load_profile("tvsd")
+
+T = TypeVar("T")
+
+
+def _timed_out(what: str | None, read: Callable[[], Any], timeout: float, last: Any) -> AssertionError:
+    return AssertionError(
+        f"timed out after {timeout:g} s waiting for {_name(what, read)} (last seen: {last!r})"
+    )
+
+
+def _name(what: str | None, read: Callable[[], Any]) -> str:
+    """What was waited for: as the test says, else the waiting line's own text."""
+    if what is not None:
+        return what
+    try:
+        return inspect.getsource(read).strip()
+    except (OSError, TypeError):
+        return repr(read)
+
+
+def _met(value: T, ok: Callable[[T], object] | None) -> bool:
+    return bool(ok(value)) if ok is not None else bool(value)
+
+
+def wait_for(
+    read: Callable[[], T],
+    timeout: float,
+    what: str | None = None,
+    *,
+    ok: Callable[[T], object] | None = None,
+    interval: float = 0.01,
+    abort: Callable[[T], str | None] | None = None,
+) -> T:
+    """Poll `read()` until its value is truthy (or `ok(value)` is), and return that value.
+
+    Fails after `timeout` s naming `what` (default: the waiting line's text) and the last value
+    read. `abort(value)`, if given, is asked after each unmet poll: a message from it fails the
+    wait at once (a daemon gone to its safe state will not get there by waiting)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        last = read()
+        if _met(last, ok):
+            return last
+        if abort is not None and (why := abort(last)) is not None:
+            raise AssertionError(f"gave up waiting for {_name(what, read)}: {why} (last seen: {last!r})")
+        if time.monotonic() >= deadline:
+            raise _timed_out(what, read, timeout, last)
+        time.sleep(interval)
+
+
+async def until(
+    read: Callable[[], T],
+    timeout: float,
+    what: str | None = None,
+    *,
+    ok: Callable[[T], object] | None = None,
+    interval: float = 0.001,
+) -> float:
+    """`wait_for` for a coroutine: polls on the event loop, so the code under test runs between
+    polls. Returns the seconds it took."""
+    t0 = time.monotonic()
+    while True:
+        last = read()
+        if _met(last, ok):
+            return time.monotonic() - t0
+        if time.monotonic() - t0 >= timeout:
+            raise _timed_out(what, read, timeout, last)
+        await asyncio.sleep(interval)

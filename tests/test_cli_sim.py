@@ -103,6 +103,7 @@ def test_record_writes_the_csv_contract(capsys, tmp_path):
         (["sim", "step"], "required: --ref-deg"),
         (["sim", "step", "--ref-deg", "abc"], "invalid float value"),
         (["sim", "step", "--ref-deg", "20", "--gains", "1,2,3"], "four numbers"),
+        (["sim", "step", "--ref-deg", "20", "--gains", "1,2,3,0"], "G0: must be above 0 1/rad"),
         (["sim", "step", "--ref-deg", "0"], "outside (0, 360]"),
         (["sim", "spin", "--rps", "25", "--seconds", "2"], "too short"),
         (["sim", "spin", "--rps", "500"], "outside the drive's range"),

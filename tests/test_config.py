@@ -12,8 +12,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tvsd.config import config_dir, load_config
-from tvsd.errors import ConfigError
+from tvsd.config import Gains, config_dir, load_config
+from tvsd.errors import ConfigError, UsageError
 
 
 def test_shipped_configs_load():
@@ -122,8 +122,13 @@ def test_arbitrary_text_never_raises_anything_but_config_error(tmp_path, text):
         (lambda d: d.__setitem__("sil_profile", "missing.yaml"), "sil_profile: no such file"),
         (
             lambda d: d["imu"].__setitem__("gyro_fs_dps", 300),
-            "imu.gyro_fs_dps = 300: one of (250, 500, 1000, 2000)",
+            "imu.gyro_fs_dps: must be one of (250, 500, 1000, 2000), got 300",
         ),
+        (
+            lambda d: d["imu"].__setitem__("poll_interval_s", 0.2),
+            "imu.poll_interval_s: must be at most 0.05 s",
+        ),
+        (lambda d: d["imu"].__setitem__("calibration_file", 3), "imu.calibration_file: expected a file path"),
         (lambda d: d["imu"].__setitem__("sa_axis", "w"), "imu.sa_axis: expected one of x, y, z"),
         (
             lambda d: d["scan"].__setitem__("phi_max_deg", 1.0),
@@ -148,8 +153,52 @@ def test_error_line_points_at_the_offending_key(tmp_path):
         load_config(path)
 
 
+def test_a_devices_own_rule_points_at_its_key_line(tmp_path):
+    """The MPU6050's rules (checked by ImuSettings itself, not by a key's bounds) name the key and
+    its line, like every other config error."""
+    text = (config_dir() / "tvsd.yaml").read_text().replace("  gyro_fs_dps: 250", "  gyro_fs_dps: 300")
+    path = _write(tmp_path, None)
+    path.write_text(text)
+    line = next(n for n, ln in enumerate(text.splitlines(), 1) if ln.startswith("  gyro_fs_dps: 300"))
+    with pytest.raises(ConfigError, match=rf":{line}: imu.gyro_fs_dps: must be one of \(250"):
+        load_config(path)
+
+
 def test_bad_effect_in_sil_profile_names_the_file(tmp_path):
     path = _write(tmp_path, _base())
     (tmp_path / "sil.yaml").write_text("effects: ['wobble:amplitude=1']\n")
     with pytest.raises(ConfigError, match=r"sil.yaml:1: effects: unknown effect 'wobble'"):
         load_config(path)
+
+
+@pytest.mark.parametrize(
+    "values,needle",
+    [
+        ({"Gp": -1.0, "Gd": 1.0, "Gr": 1.0, "G0": 1.0}, "Gp: must be at least 0 V, got -1.0"),
+        ({"Gp": 1.0, "Gd": 1.0, "Gr": 1.0, "G0": 0.0}, "G0: must be above 0 1/rad, got 0.0"),
+        ({"Gp": 1.0, "Gd": math.nan, "Gr": 1.0, "G0": 1.0}, "Gd: expected a finite number V"),
+    ],
+)
+def test_gains_made_in_code_obey_the_configs_rules(values, needle):
+    """The API and the command line build Gains directly: the same option rules apply."""
+    with pytest.raises(UsageError, match=re.escape(needle)):
+        Gains(**values)
+
+
+def test_the_daemons_times_and_limits_come_from_the_config(tmp_path):
+    cfg = load_config()
+    d = cfg.daemon
+    assert (d.status_period_s, d.drain_period_s, d.fault_window_s, d.home_timeout_s, d.max_rps) == (
+        1.0, 0.02, 2.0, 30.0, 60.0
+    )  # fmt: skip
+    assert cfg.mcu.link_lost_ms == 50.0 and cfg.can.handler_timeout_s == 2.0 and cfg.imu.calibrate_max_s == 60
+    data = _base()
+    data["daemon"] = {"max_rps": 0}
+    with pytest.raises(ConfigError, match=re.escape("daemon.max_rps: must be above 0 rev/s")):
+        load_config(_write(tmp_path, data))
+    data = _base()
+    data["mcu"] = {"link_timeout_ms": 60}
+    with pytest.raises(
+        ConfigError, match=re.escape("mcu.link_timeout_ms: must be at most link_lost_ms (50 ms)")
+    ):
+        load_config(_write(tmp_path, data))

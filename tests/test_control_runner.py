@@ -1,4 +1,4 @@
-"""The 10 kHz control runner: function, never timing (DESIGN.md: these machines wake threads late).
+"""The 10 kHz control runner: function, never timing (docs/architecture.md: these machines wake threads late).
 
 Every assertion here holds however late the machine wakes the thread: tick counts, the law's
 arithmetic on what was recorded, the plant's physics over real elapsed time, the overrun logic
@@ -10,17 +10,16 @@ from __future__ import annotations
 import math
 import time
 import tracemalloc
-from collections.abc import Callable
 
 import numpy as np
 import pytest
+from conftest import wait_for
 from numba.core.runtime import _nrt_python as nrt_stats  # type: ignore[attr-defined]
 from numba.core.runtime import rtsys
 
 from tvsd.config import load_config
-from tvsd.control import latency as L
-from tvsd.control import runner as RN
 from tvsd.control import scanning
+from tvsd.control.runner import EXTRAPOLATE_MAX_NS, Runner
 from tvsd.control.setup import Setup
 from tvsd.model import params as P
 from tvsd.model import plant as K
@@ -29,7 +28,7 @@ from tvsd.model import plant as K
 @pytest.fixture(scope="module")
 def setup() -> Setup:
     s = Setup.from_config(load_config(params="default"))
-    warm = RN.Runner(s)  # load (or compile) the kernel once, outside the tests' waits
+    warm = Runner(s)  # load (or compile) the kernel once, outside the tests' waits
     warm.start(max_ticks=2)
     warm.join(120.0)
     return s
@@ -42,59 +41,50 @@ def _law(eps: float, eps_dot: float, g: tuple[float, float, float, float], umax:
     return max(-umax, min(umax, u))
 
 
-def _wait(pred: Callable[[], bool], timeout: float) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.01)
-    return False
-
-
 def test_runs_n_ticks_then_stops_on_request(setup: Setup) -> None:
-    r = RN.Runner(setup)
+    r = Runner(setup)
     r.start(max_ticks=500)
     r.join(30.0)
     assert r.ticks == 500
-    assert r.ints[L.K_RUNNING] == 0
+    assert not r.is_running
     r.start()
-    assert _wait(lambda: r.ticks > 100, 10.0), "loop did not tick"
+    wait_for(lambda: r.ticks, 10.0, "100 ticks", ok=lambda n: n > 100)
     r.stop(5.0)
     stopped_at = r.ticks
     time.sleep(0.05)
     assert r.ticks == stopped_at, "ticks after stop"
-    assert r.ints[L.K_RUNNING] == 0
+    assert not r.is_running
     assert r.command == 0.0, "a stopped loop must command nothing"
 
 
 def test_histogram_counts_every_tick(setup: Setup) -> None:
-    r = RN.Runner(setup)
+    r = Runner(setup)
     r.scan(20.0)
     r.start(max_ticks=3000)
     r.join(30.0)
-    assert int(r.hist.sum()) == r.ticks == 3000
+    assert int(r.lateness_histogram().sum()) == r.ticks == 3000
     s = r.stats()
     assert s.ticks == 3000 and s.max_us >= 0.0 and s.p50_us <= s.p99_us <= s.p999_us
 
 
 def test_scanning_command_is_the_law_of_what_it_saw(setup: Setup) -> None:
-    r = RN.Runner(setup)
+    r = Runner(setup)
     r.scan(20.0)
     r.start(max_ticks=4000)
     r.join(30.0)
-    rec = r.recent()
+    rec = r.recent_ticks()
     assert len(rec) == 4000
     g = setup.gains.as_tuple()
     p = setup.plant
     for k in range(1, len(rec)):
         row, prev = rec[k], rec[k - 1]
-        dt = row[RN.R_DT]
+        dt = row["dt"]
         # The references advance by the measured step, which is the recorded wake-to-wake time.
-        assert dt == pytest.approx(row[RN.R_T] - prev[RN.R_T], abs=1e-9)
-        assert row[RN.R_PHI_REF] - prev[RN.R_PHI_REF] == pytest.approx(row[RN.R_OMEGA_REF] * dt, abs=1e-12)
-        alpha = (row[RN.R_OMEGA_REF] - prev[RN.R_OMEGA_REF]) / dt
+        assert dt == pytest.approx(row["t"] - prev["t"], abs=1e-9)
+        assert row["phi_ref"] - prev["phi_ref"] == pytest.approx(row["omega_ref"] * dt, abs=1e-12)
+        alpha = (row["omega_ref"] - prev["omega_ref"]) / dt
         u_ff = scanning.feedforward.py_func(
-            row[RN.R_OMEGA_REF],
+            row["omega_ref"],
             alpha,
             p[P.P_J],
             p[P.P_KV] + p[P.P_S2],
@@ -106,46 +96,46 @@ def test_scanning_command_is_the_law_of_what_it_saw(setup: Setup) -> None:
             p[P.P_TS],
             p[P.P_V0],
         )
-        assert row[RN.R_UFF] == pytest.approx(u_ff, rel=1e-9, abs=1e-12)
+        assert row["u_ff"] == pytest.approx(u_ff, rel=1e-9, abs=1e-12)
         lim = max(setup.u_max - abs(u_ff), 0.0)
-        eps = row[RN.R_PHI_REF] - row[RN.R_PHI]
-        expect = _law(eps, row[RN.R_OMEGA_REF] - row[RN.R_OMEGA], g, lim) + u_ff
-        assert row[RN.R_U] == pytest.approx(expect, abs=1e-12), f"tick {k}"
+        eps = row["phi_ref"] - row["phi"]
+        expect = _law(eps, row["omega_ref"] - row["omega"], g, lim) + u_ff
+        assert row["u"] == pytest.approx(expect, abs=1e-12), f"tick {k}"
 
 
 def test_hardware_mode_uses_the_measured_inputs(setup: Setup) -> None:
     """Without SIL the kernel reads φ, ω from the shared array the I/O side writes."""
-    r = RN.Runner(setup, sil=False)
+    r = Runner(setup, sil=False)
     r.measured(0.1, 2.0)
     r.position(0.3)
     r.start()
-    assert _wait(lambda: r.ticks > 50, 10.0)
+    wait_for(lambda: r.ticks, 10.0, "50 ticks", ok=lambda n: n > 50)
     u_seen = r.command
     r.stop(5.0)
     expect = _law(0.3 - 0.1, -2.0, setup.gains.as_tuple(), setup.u_max)
     assert u_seen == pytest.approx(expect, abs=1e-12)
-    rec = r.recent(10)
-    assert np.all(rec[:, RN.R_PHI] == 0.1) and np.all(rec[:, RN.R_OMEGA] == 2.0)
+    rec = r.recent_ticks(10)
+    assert np.all(rec["phi"] == 0.1) and np.all(rec["omega"] == 2.0)
 
 
 def test_a_measurement_with_its_sampling_time_is_carried_forward_at_its_speed(setup: Setup) -> None:
     """With the MCU's sampling instant, each tick's φ is φ_s + ω·(wake − t_s): exactly, since the
     recorded t is the wake time on the same clock (capped at EXTRAPOLATE_MAX_NS)."""
-    r = RN.Runner(setup, sil=False)
+    r = Runner(setup, sil=False)
     r.position(0.0)
     r.start()
-    assert _wait(lambda: r.ticks > 5, 10.0)
+    wait_for(lambda: r.ticks, 10.0, "5 ticks", ok=lambda n: n > 5)
     sample_ns = time.monotonic_ns()
     r.measured(0.1, 2.0, sample_ns=sample_ns)
     first = r.ticks
-    assert _wait(lambda: r.ticks > first + 50, 10.0)
+    wait_for(lambda: r.ticks, 10.0, "50 more ticks", ok=lambda n: n > first + 50)
     r.stop(5.0)
-    rec = r.recent(40)
-    start_ns = int(r.ints[L.K_START_NS])
-    age = np.clip(start_ns + rec[:, RN.R_T] * 1e9 - sample_ns, 0, RN.EXTRAPOLATE_MAX_NS) / 1e9
-    # R_T is stored in float seconds since the start: ~1e-16 relative, ns exact to ~1e-6 s·ω
-    np.testing.assert_allclose(rec[:, RN.R_PHI], 0.1 + 2.0 * age, rtol=0, atol=1e-9)
-    assert np.all(rec[:, RN.R_OMEGA] == 2.0) and np.all(age > 0)
+    rec = r.recent_ticks(40)
+    start_ns = r.start_ns
+    age = np.clip(start_ns + rec["t"] * 1e9 - sample_ns, 0, EXTRAPOLATE_MAX_NS) / 1e9
+    # t is stored in float seconds since the start: ~1e-16 relative, ns exact to ~1e-6 s·ω
+    np.testing.assert_allclose(rec["phi"], 0.1 + 2.0 * age, rtol=0, atol=1e-9)
+    assert np.all(rec["omega"] == 2.0) and np.all(age > 0)
 
 
 def test_sil_plant_spins_up_in_real_time(setup: Setup) -> None:
@@ -154,64 +144,54 @@ def test_sil_plant_spins_up_in_real_time(setup: Setup) -> None:
     The plant advances by real elapsed time whatever the wake-up lateness, so only the bound on
     wall time is generous (8 s): late ticks worsen tracking, they do not slow the physics.
     """
-    r = RN.Runner(setup)
+    r = Runner(setup)
     r.scan(20.0)
     t0 = time.monotonic()
     r.start()
-    target = 2 * math.pi * 20.0
-    ok = _wait(lambda: abs(r.vals[RN.V_OMEGA] - target) < 0.02 * target and time.monotonic() - t0 > 2.0, 8.0)
-    wall = time.monotonic() - t0
-    r.stop(5.0)
-    sim_time = r.recent(1)[0, RN.R_T]
-    assert ok, f"SIL plant at {r.vals[RN.V_OMEGA] / 2 / math.pi:.2f} rev/s after {wall:.1f} s"
+    try:
+        wait_for(
+            lambda: r.omega / (2 * math.pi),
+            8.0,
+            "the SIL plant at 20 rev/s ± 2 % after 2 s",
+            ok=lambda rps: abs(rps - 20.0) < 0.02 * 20.0 and time.monotonic() - t0 > 2.0,
+        )
+    finally:
+        wall = time.monotonic() - t0
+        r.stop(5.0)
+    sim_time = r.recent_ticks(1)["t"][0]
     assert wall >= 1.9, "the ramp cannot finish before 2 s of real time: the plant ran faster than real time"
     assert sim_time == pytest.approx(wall, abs=0.3)
-    assert r.state[K.S_OMEGA] == r.vals[RN.V_OMEGA]
+    assert r.state[K.S_OMEGA] == r.omega
 
 
 def test_overrun_streak_latches_the_safe_state(setup: Setup) -> None:
     """A busy wait of 3 periods per tick makes every tick wake ≥ 2 periods late: certain overrun."""
-    r = RN.Runner(setup, streak_limit=20)
+    r = Runner(setup, streak_limit=20)
     r.scan(20.0)
-    r.ints[RN.K_BUSY_NS] = 3 * r.ints[L.K_PERIOD_NS]
+    r.inject_overrun(periods=3.0)
     r.start()
-    assert _wait(lambda: r.fault, 10.0), "no fault after sustained overrun"
-    assert r.ints[L.K_LATE_TICKS] >= 20
-    assert _wait(lambda: r.command == 0.0, 1.0)
+    wait_for(lambda: r.fault, 10.0, "the fault after sustained overrun")
+    assert r.stats().late_ticks >= 20
+    wait_for(lambda: r.command, 1.0, "command 0", ok=lambda u: u == 0.0)
     time.sleep(0.02)
     assert r.command == 0.0 and r.fault, "the safe state must latch"
-    r.ints[RN.K_BUSY_NS] = 0
+    r.inject_overrun(0)
     r.stop(5.0)
-    assert r.stats().missed_ticks >= 2 * r.ints[L.K_LATE_TICKS] - 1  # each late tick skipped ≥ 2
+    assert r.stats().missed_ticks >= 2 * r.stats().late_ticks - 1  # each late tick skipped ≥ 2
     # Every tick after the first is late, so the longest run is the whole run of late ticks.
     assert r.stats().longest_late_run >= 20
-    assert r.stats().longest_late_run >= r.ints[L.K_LATE_TICKS] - 1
+    assert r.stats().longest_late_run >= r.stats().late_ticks - 1
 
 
 def test_unmeetable_period_trips_the_fault(setup: Setup) -> None:
     """A 2 µs period cannot be met (one clock_nanosleep costs more): the streak trips."""
-    r = RN.Runner(setup, period_s=2e-6, streak_limit=50)
+    r = Runner(setup, period_s=2e-6, streak_limit=50)
     r.scan(20.0)
     r.start()
-    assert _wait(lambda: r.fault, 10.0)
+    wait_for(lambda: r.fault, 10.0, "the fault")
     r.stop(5.0)
     r.clear_fault()
     assert not r.fault
-
-
-def test_wait_tick_accounting() -> None:
-    """A deadline 5.5 periods in the past: one late tick, 5 deadlines skipped, phase kept."""
-    ints, hist = L.new_timing(1.0)
-    ts = np.zeros(2, dtype=np.int64)
-    now = L.now_ns(ts)
-    wake, served = L.wait_tick(ints, hist, L.EDGES_NS, ts, now - 5_500_000_000)
-    assert ints[L.K_MISSED] == 5 and ints[L.K_LATE_TICKS] == 1 and ints[L.K_STREAK] == 1
-    assert served == now - 500_000_000
-    assert hist[-1] == 1  # ≥ 10 ms: overflow bin
-    wake, served = L.wait_tick(ints, hist, L.EDGES_NS, ts, L.now_ns(ts) + 1_000_000)
-    assert ints[L.K_STREAK] == 0 and ints[L.K_MISSED] == 5
-    assert wake >= served
-    assert int(hist.sum()) == 2
 
 
 def test_no_allocation_per_tick(setup: Setup) -> None:
@@ -220,7 +200,7 @@ def test_no_allocation_per_tick(setup: Setup) -> None:
     per_tick: dict[bool, float] = {}
     nrt_stats.memsys_enable_stats()  # NUMBA_NRT_STATS=1, switched on at run time
     for sil in (False, True):
-        r = RN.Runner(setup, sil=sil)
+        r = Runner(setup, sil=sil)
         r.measured(0.0, 0.0)
         r.position(0.2)
         counts = []
@@ -236,7 +216,6 @@ def test_no_allocation_per_tick(setup: Setup) -> None:
                 tracemalloc.stop()
                 assert grown < 16_000, f"Python side grew {grown} B over 5000 ticks"
             counts.append(rtsys.get_allocation_stats().alloc - a)
-            r.ints[L.K_TICKS] = 0
         per_tick[sil] = (counts[1] - counts[0]) / 5000
     nrt_stats.memsys_disable_stats()
     assert per_tick[False] == 0.0

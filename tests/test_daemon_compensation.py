@@ -14,10 +14,9 @@ far above no gain: the MAD of ~150 points is good to ~10 %, SIL timing varies ru
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
-from test_daemon import daemon, status, tvsctl, wait_for  # noqa: F401  (the fixture, by name)
+from test_daemon import daemon, tvsctl, wait_status, wait_ticks  # noqa: F401  (the fixture, by name)
 
 from tvsd.config import load_config
 from tvsd.recording.reader import open_recording
@@ -39,7 +38,7 @@ def _scan_once(sock, data, seconds: float) -> tuple[np.ndarray, np.ndarray, bool
     before = set(data.iterdir()) if data.exists() else set()
     tvsctl(sock, "record", "start")
     tvsctl(sock, "scan", "start")
-    time.sleep(seconds)
+    wait_ticks(sock, seconds)
     tvsctl(sock, "scan", "stop", check=False)
     tvsctl(sock, "record", "stop")
     (path,) = set(data.iterdir()) - before
@@ -53,16 +52,16 @@ def _scan_once(sock, data, seconds: float) -> tuple[np.ndarray, np.ndarray, bool
 def test_compensated_beta_scatters_several_times_less_than_uncompensated(daemon):  # noqa: F811
     _, sock, data = daemon
     tvsctl(sock, "speed", "25")
-    wait_for(lambda: abs(status(sock)["rps"] - 25) < 0.3, 60, "25 rev/s")
-    time.sleep(2.0)  # past the ramp's end: its jerk is not what this measures
+    wait_status(sock, lambda s: abs(s["rps"] - 25) < 0.3, 60, "25 rev/s")
+    wait_ticks(sock, 2.0)  # past the ramp's end: its jerk is not what this measures
     for _attempt in range(2):  # a stall of the shared machine may trip a SIL fault: once more
         beta, pulses, faulted = _scan_once(sock, data, 8.0)
         if not faulted and len(beta) >= MIN_POINTS:
             break
         tvsctl(sock, "faults", "--clear", check=False)
         tvsctl(sock, "speed", "25", check=False)
-        wait_for(lambda: abs(status(sock)["rps"] - 25) < 0.3, 60, "25 rev/s again")
-        time.sleep(2.0)
+        wait_status(sock, lambda s: abs(s["rps"] - 25) < 0.3, 60, "25 rev/s again")
+        wait_ticks(sock, 2.0)
     assert len(beta) >= MIN_POINTS, f"only {len(beta)} compensated points in 8 s (faulted: {faulted})"
     cfg = load_config(params="default")
     plain = PointStream(cfg.scan, math.radians(60.0), 0.0, TICK_S, compensate=False)
@@ -70,7 +69,7 @@ def test_compensated_beta_scatters_several_times_less_than_uncompensated(daemon)
     for p in pulses:
         kind = PP.ZERO if p["channel"] == 0 else PP.OPTICAL
         rows += plain.add_pulse(kind, int(p["mcu_ticks"]))
-    uncompensated = np.array([r["beta"] for r in rows])
+    uncompensated = np.array([r.beta for r in rows])
     assert len(uncompensated) >= MIN_POINTS
     gain = _robust_std(uncompensated) / _robust_std(beta)
     assert gain >= MIN_GAIN, (

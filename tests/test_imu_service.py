@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import until
 from scipy.signal import csd, welch
 
 from tvsd.daemon.imu_service import ImuService
@@ -55,14 +56,6 @@ def run(body: Callable[[ImuService, Seen], Awaitable[None]], svc: ImuService) ->
 
     asyncio.run(main())
     return seen
-
-
-async def until(cond: Callable[[], bool], timeout: float, what: str) -> float:
-    t0 = time.monotonic()
-    while not cond():
-        assert time.monotonic() - t0 < timeout, f"not within {timeout} s: {what}"
-        await asyncio.sleep(0.002)
-    return time.monotonic() - t0
 
 
 def test_sil_batches_arrive_at_each_sensors_rate(tmp_path: Path) -> None:

@@ -85,3 +85,18 @@ def test_cli_table_and_bad_seconds(capsys: pytest.CaptureFixture[str]) -> None:
     bad = parser.parse_args(["latency", "--seconds", "0"])
     with pytest.raises(cli.UsageError, match="--seconds"):
         bad.func(bad)
+
+
+def test_wait_tick_accounting() -> None:
+    """A deadline 5.5 periods in the past: one late tick, 5 deadlines skipped, phase kept."""
+    ints, hist = L.new_timing(1.0)
+    ts = np.zeros(2, dtype=np.int64)
+    now = L.now_ns(ts)
+    wake, served = L.wait_tick(ints, hist, L.EDGES_NS, ts, now - 5_500_000_000)
+    assert ints[L.K_MISSED] == 5 and ints[L.K_LATE_TICKS] == 1 and ints[L.K_STREAK] == 1
+    assert served == now - 500_000_000
+    assert hist[-1] == 1  # ≥ 10 ms: overflow bin
+    wake, served = L.wait_tick(ints, hist, L.EDGES_NS, ts, L.now_ns(ts) + 1_000_000)
+    assert ints[L.K_STREAK] == 0 and ints[L.K_MISSED] == 5
+    assert wake >= served
+    assert int(hist.sum()) == 2

@@ -9,15 +9,16 @@ import os
 import threading
 import time
 import tty
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 
 import pytest
+from conftest import until
 
-from tvsd.errors import ConfigError, DeviceError, ProtocolError, UsageError
+from tvsd.errors import DeviceError, ProtocolError, UsageError
 from tvsd.hw.mcu.framing import Frame, FrameDecoder, encode_frame
-from tvsd.hw.mcu.link import LinkSettings, McuLink, PulseEvent, Refusal, StateSample
+from tvsd.hw.mcu.link import McuLink, McuSettings, PulseEvent, Refusal, StateSample
 from tvsd.hw.mcu.spec import load_spec
 
 SPEC = load_spec()
@@ -90,8 +91,8 @@ async def pty_link(fake_kw: dict | None = None, **link_kw: object) -> AsyncItera
     cbs = {k: link_kw.pop(k) for k in list(link_kw) if k.startswith("on_")}
     # Tests of link loss give their timeout; for the others, a 50 ms stall of this process (it
     # plays the MCU too) must not read as a loss and break the chain of stamps they check.
-    link_kw.setdefault("link_timeout_s", 10.0)
-    link = McuLink(LinkSettings(port=path, **link_kw), SPEC, **cbs)  # type: ignore[arg-type]
+    link_kw.setdefault("link_lost_ms", 10_000.0)
+    link = McuLink(McuSettings(port=path, **link_kw), SPEC, **cbs)  # type: ignore[arg-type]
     try:
         await link.open()
         yield link, fake
@@ -145,7 +146,7 @@ def test_identify_mismatch_is_refused_with_the_fix() -> None:
 
 def test_silent_mcu_is_a_device_error() -> None:
     async def main() -> None:
-        async with pty_link({"answer": False}, identify_timeout_s=0.15) as (link, fake):
+        async with pty_link({"answer": False}, identify_timeout_ms=150) as (link, fake):
             with pytest.raises(DeviceError, match="no answer from the MCU"):
                 await link.identify()
             assert len(fake.received) == 3  # one request per attempt
@@ -155,7 +156,7 @@ def test_silent_mcu_is_a_device_error() -> None:
 
 def test_bad_port_message() -> None:
     async def main() -> None:
-        link = McuLink(LinkSettings(port="/dev/ttyNOPE9"), SPEC)
+        link = McuLink(McuSettings(port="/dev/ttyNOPE9"), SPEC)
         with pytest.raises(DeviceError) as info:
             await link.open()
         assert str(info.value) == (
@@ -168,7 +169,7 @@ def test_bad_port_message() -> None:
 
 def test_heartbeat_task_feeds_clock_sync() -> None:
     async def main() -> None:
-        async with pty_link(heartbeat_period_s=0.005) as (link, fake):
+        async with pty_link(watchdog_ms=20) as (link, fake):  # heartbeats every 5 ms
             await link.identify()
             link.start_heartbeat()
             await wait_for(lambda: link.stats().rtt_samples >= 60, timeout=5.0)
@@ -229,12 +230,9 @@ def test_state_frames_unwrap_16_bit_ticks_and_encoder() -> None:
     run(main)
 
 
-async def wait_for(cond: Callable[[], bool], timeout: float = 2.0) -> None:
-    t_end = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > t_end:
-            raise AssertionError("condition not met in time")
-        await asyncio.sleep(0.001)
+def wait_for(cond: Callable[[], object], timeout: float = 2.0) -> Awaitable[float]:
+    """The shared poll (conftest.until) with this file's usual bound."""
+    return until(cond, timeout)
 
 
 def test_link_loss_reported_in_time_and_recovers() -> None:
@@ -242,7 +240,9 @@ def test_link_loss_reported_in_time_and_recovers() -> None:
         events: list[tuple[bool, float]] = []
         loop = asyncio.get_running_loop()
         timeout = 0.05
-        async with pty_link(on_link=lambda up: events.append((up, loop.time())), link_timeout_s=timeout) as (
+        async with pty_link(
+            on_link=lambda up: events.append((up, loop.time())), link_lost_ms=1e3 * timeout
+        ) as (
             link,
             fake,
         ):
@@ -312,7 +312,7 @@ def test_corruption_is_counted_and_link_stays_up() -> None:
 
 def test_send_pwm_from_another_thread() -> None:
     async def main() -> None:
-        async with pty_link(heartbeat_period_s=0.002) as (link, fake):
+        async with pty_link(watchdog_ms=8) as (link, fake):  # heartbeats every 2 ms
             await link.identify()
             link.start_heartbeat()  # the loop thread sends too: SEQ must stay consistent
             n = 3000
@@ -456,7 +456,7 @@ def test_unplugged_device_is_reported() -> None:
         loop = asyncio.get_running_loop()
         fake = FakeMcu(master)
         loop.add_reader(master, fake.on_readable)
-        link = McuLink(LinkSettings(port=os.ttyname(slave)), SPEC, on_link=events.append)
+        link = McuLink(McuSettings(port=os.ttyname(slave)), SPEC, on_link=events.append)
         await link.open()
         try:
             await link.identify()
@@ -482,10 +482,12 @@ def test_out_of_range_field_is_a_usage_error() -> None:
 
 
 def test_settings_are_checked() -> None:
-    with pytest.raises(ConfigError, match=r"mcu\.link_timeout_s must be > 0"):
-        LinkSettings(port="/dev/x", link_timeout_s=0)
-    with pytest.raises(ConfigError, match="tx_buffer_bytes must be >= 38"):
-        LinkSettings(port="/dev/x", tx_buffer_bytes=10)
+    with pytest.raises(UsageError, match=r"link_lost_ms: must be above 0 ms"):
+        McuSettings(port="/dev/x", link_lost_ms=0)
+    with pytest.raises(UsageError, match="tx_buffer_bytes: must be at least 38 B"):
+        McuSettings(port="/dev/x", tx_buffer_bytes=10)
+    with pytest.raises(UsageError, match="link_timeout_ms: must be at most link_lost_ms"):
+        McuSettings(port="/dev/x", link_timeout_ms=60)
 
 
 def test_states_before_the_first_ack_are_held_then_placed_exactly() -> None:
@@ -497,7 +499,7 @@ def test_states_before_the_first_ack_are_held_then_placed_exactly() -> None:
         # A 50 ms silence before the ping would rightly be a link loss (which drops held frames
         # that no ack can place); a loaded CI machine can take that long, so this test, which is
         # not about link loss, gives the link 10 s.
-        async with pty_link(on_state=got.append, link_timeout_s=10.0) as (link, fake):
+        async with pty_link(on_state=got.append, link_lost_ms=10_000) as (link, fake):
             await link.identify()
             t = 5_000_000  # the MCU's count; the host has not seen any of it yet
             for i in range(60):  # 60 frames 1 ms apart: 0.9 wraps of ticks16 ... 14 wraps
@@ -514,13 +516,13 @@ def test_states_before_the_first_ack_are_held_then_placed_exactly() -> None:
 
 
 def test_a_stalled_host_is_not_a_link_loss() -> None:
-    # The event loop not scheduled for longer than link_timeout_s (a loaded machine), then the
+    # The event loop not scheduled for longer than link_lost_ms (a loaded machine), then the
     # link timer running before the reader in the same loop iteration: the frames waiting in the
     # pty prove the link alive. (Declaring it lost reset the SEQ, so the gap before them went
     # uncounted and the 16-bit stamps were chained across it.)
     async def main() -> None:
         got: list[StateSample] = []
-        async with pty_link(on_state=got.append, link_timeout_s=0.05) as (link, fake):
+        async with pty_link(on_state=got.append, link_lost_ms=50) as (link, fake):
             await link.identify()
             t = fake.frozen = 1_000_000
             await link.ping()

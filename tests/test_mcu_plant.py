@@ -10,15 +10,15 @@ from __future__ import annotations
 import asyncio
 import itertools
 import math
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 
 import numpy as np
 import pytest
+from conftest import until
 
 from tvsd.config import Config, VibrationConfig, load_config
-from tvsd.hw.mcu.link import LinkSettings, McuLink, PulseEvent, StateSample
+from tvsd.hw.mcu.link import McuLink, McuSettings, PulseEvent, StateSample
 from tvsd.scan.geometry import doe_b_target, inverse
 from tvsd.sim import mcu_plant as mp
 from tvsd.sim import virtual_mcu as vm
@@ -47,11 +47,7 @@ def bridge(
         yield plant
 
 
-async def wait(cond: Callable[[], bool], timeout: float, what: str) -> None:
-    t_end = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < t_end, f"not within {timeout} s: {what}"
-        await asyncio.sleep(0.001)
+wait = until  # the shared poll
 
 
 async def spin(
@@ -66,7 +62,7 @@ async def spin(
     at a fraction of SPEED."""
     # link_timeout 10 s: a stall of this process (it paces the plant) must not read as a link loss,
     # which would break the chain of stamps that `exact` and the 1 ms steps below check
-    settings = LinkSettings(port=plant.mcu.port, link_timeout_s=10.0)
+    settings = McuSettings(port=plant.mcu.port, link_lost_ms=10_000)
     link = McuLink(settings, on_state=states.append, on_pulse=pulses.append)
     async with link:
         # 2 s of MCU time: a heartbeat late on a loaded host must not trip the watchdog

@@ -12,13 +12,14 @@ import itertools
 import json
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import pytest
+from conftest import until
 
 import tvsd.cli.main as cli_main
 from tvsd.errors import DeviceError
-from tvsd.hw.mcu.link import FaultEvent, LinkSettings, McuLink, PulseEvent, StateSample
+from tvsd.hw.mcu.link import FaultEvent, McuLink, McuSettings, PulseEvent, StateSample
 from tvsd.hw.mcu.spec import load_spec
 from tvsd.hw.mcu.steppers import AxisSettings, Steppers, StepperSettings
 from tvsd.sim import virtual_mcu as vm
@@ -36,7 +37,7 @@ def vmcu() -> Iterator[vm.VirtualMcu]:
 
 def test_identify_matches_the_firmware(vmcu: vm.VirtualMcu) -> None:
     async def main() -> None:
-        async with McuLink(LinkSettings(port=vmcu.port)) as link:
+        async with McuLink(McuSettings(port=vmcu.port)) as link:
             assert link.identity is not None
             # the C generator and spec.py computed the same hash from protocol.yaml
             assert link.identity.table_hash == load_spec().table_hash
@@ -52,7 +53,7 @@ def test_state_ticks_encoder_pulses_and_pwm(vmcu: vm.VirtualMcu) -> None:
     async def main() -> None:
         # (a stall of this process, which pumps the virtual MCU, must not read as a link loss:
         # the stamps' chain would break and `exact` below with it)
-        settings = LinkSettings(port=vmcu.port, heartbeat_period_s=0.005, link_timeout_s=10.0)
+        settings = McuSettings(port=vmcu.port, watchdog_ms=20, link_lost_ms=10_000)  # heartbeat 5 ms
         async with McuLink(settings, on_state=states.append, on_pulse=pulses.append) as link:
             # the motor turns 12 rev in 0.3 s: 49152 counts, past the i16 wrap
             t0 = time.monotonic()
@@ -95,7 +96,7 @@ def test_steppers_home_and_move_on_the_firmware(vmcu: vm.VirtualMcu) -> None:
     vmcu.set_limit(1, -100)  # the home switch closes 100 steps below where the axis starts
 
     async def main() -> None:
-        link = McuLink(LinkSettings(port=vmcu.port))
+        link = McuLink(McuSettings(port=vmcu.port))
         steppers = Steppers(link, StepperSettings(gamma=gamma))
         link.on_stepper = steppers.update
         link.on_refused = lambda r: steppers.refused(r.name, r.values, r.reason)
@@ -114,7 +115,7 @@ def test_steppers_home_and_move_on_the_firmware(vmcu: vm.VirtualMcu) -> None:
 
 def test_refusal_reaches_the_caller(vmcu: vm.VirtualMcu) -> None:
     async def main() -> None:
-        link = McuLink(LinkSettings(port=vmcu.port))
+        link = McuLink(McuSettings(port=vmcu.port))
         steppers = Steppers(link)
         link.on_stepper = steppers.update
         link.on_refused = lambda r: steppers.refused(r.name, r.values, r.reason)
@@ -135,7 +136,7 @@ def test_watchdog_cuts_outputs_when_heartbeats_stop(vmcu: vm.VirtualMcu) -> None
     faults: list[FaultEvent] = []
 
     async def main() -> None:
-        link = McuLink(LinkSettings(port=vmcu.port, heartbeat_period_s=0.01), on_fault=faults.append)
+        link = McuLink(McuSettings(port=vmcu.port, watchdog_ms=40), on_fault=faults.append)
         async with link:
             link.send_config(watchdog_ms=100, state_div=10, max_on_ms=0)
             await asyncio.sleep(0.02)
@@ -157,11 +158,7 @@ def test_watchdog_cuts_outputs_when_heartbeats_stop(vmcu: vm.VirtualMcu) -> None
     asyncio.run(main())
 
 
-async def wait(cond: Callable[[], bool], timeout: float) -> None:
-    t_end = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < t_end, "condition not met in time"
-        await asyncio.sleep(0.001)
+wait = until  # the shared poll
 
 
 def run_cli(argv: list[str], monkeypatch: pytest.MonkeyPatch) -> int:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -35,10 +37,11 @@ def test_ply_puts_xyz_first_and_keeps_flags_integer(tmp_path):
     assert [int(ln.split()[-1]) for ln in lines[lines.index("end_header") + 1 :]] == [0, 1, 2]
 
 
-def test_records_carry_the_same_fields():
-    recs = list(cloud(4).records())
-    assert len(recs) == 4 and all(tuple(r) == FIELDS for r in recs)
-    assert isinstance(recs[1]["flags"], int) and recs[1]["flags"] & FLAG_VIBRATION
+def test_points_carry_the_same_fields_and_their_json_adds_t_mono():
+    points = list(cloud(4).points())
+    assert len(points) == 4 and all(tuple(p.to_json())[: len(FIELDS)] == FIELDS for p in points)
+    assert isinstance(points[1].flags, int) and points[1].flags & FLAG_VIBRATION
+    assert points[1].to_json()["x"] == points[1].x and math.isnan(points[1].to_json()["t_mono"])
 
 
 def test_bad_paths_and_files_are_one_line_errors(tmp_path):

@@ -124,7 +124,7 @@ def test_stream_gives_the_batch_points():
             out += stream.add_samples(k.t0 + fed * k.dt, k.imu[fed:upto], k.drive[fed:upto])
             fed = max(fed, upto)
             out += stream.add_pulse(int(kind), int(tick))
-        got = {round(p["t"], 7): p for p in out}
+        got = {round(p.t, 7): p for p in out}
         # The stream's first points lack a full σ window; compare where both have one.
         common = [i for i, t in enumerate(batch.t) if round(float(t), 7) in got and t > batch.t[0] + 0.6]
         assert len(common) > 20, estimator
@@ -134,10 +134,9 @@ def test_stream_gives_the_batch_points():
             # rest with its own mean, and through the drive's damping (λ = 0.41 1/s) that leaves a
             # slow exponential the quadratic fit absorbs all but ~λ²·δω·T³/6 of (≲ 1e-6 rad for
             # δω ~ 0.5 rad/s over T = 0.1 s): a few % of the point's σβ (~4e-5 rad) at most.
-            assert abs(p["beta"] - batch.beta[i]) < 0.05 * batch.sigma_beta[i]
+            assert abs(p.beta - batch.beta[i]) < 0.05 * batch.sigma_beta[i]
             # σ sees the same state through λ·ω_K in the damped acceleration: ≲ 0.2 % measured.
-            assert p["sigma_beta"] == pytest.approx(batch.sigma_beta[i], rel=1e-2)
-            assert set(p) == set(batch.records().__next__())
+            assert p.sigma_beta == pytest.approx(batch.sigma_beta[i], rel=1e-2)
 
 
 def test_scene_refuses_a_shaft_that_does_not_turn():
@@ -226,7 +225,7 @@ def test_stream_emits_each_point_once_the_imu_passes_its_own_next_zero_pulse():
                 fed = upto
             next_batch += 0.038
         out += stream.add_pulse(int(kind), int(tick))
-        delays += [now - p["t"] for p in out]
+        delays += [now - p.t for p in out]
     assert len(delays) > 20
     # next zero ≤ 50 ms, then the batch covering it: 20 ms + a 1 ms cell behind, every 38 ms, taken
     # at the first pulse after its time (pulses every ~25 ms here): 134 ms; measured 100 ms.

@@ -15,12 +15,13 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from tvsd.errors import ConfigError, UsageError
 from tvsd.hw.can.settings import CanSettings
+from tvsd.hw.mcu.settings import McuSettings
+from tvsd.hw.mpu6050 import ImuSettings
 from tvsd.scan.settings import ScanSettings
-from tvsd.schema import Where, build, load_yaml, option
+from tvsd.schema import Where, build, check, load_yaml, option
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -62,6 +63,9 @@ class Gains:
     Gr: float = option(doc="robust gain", unit="V", ge=0)
     G0: float = option(doc="sharpness factor", unit="1/rad", gt=0)
 
+    def __post_init__(self) -> None:
+        check(self)  # the one rule for gains from YAML, the API and the command line
+
     def as_tuple(self) -> tuple[float, float, float, float]:
         return (self.Gp, self.Gd, self.Gr, self.G0)
 
@@ -98,38 +102,6 @@ class ControlConfig:
 @dataclass(frozen=True, kw_only=True)
 class GeometryConfig:
     baseline_m: float = option(0.5, doc="baseline a between PL and SA (MODEL-NOTES §6)", unit="m", gt=0)
-
-
-@dataclass(frozen=True, kw_only=True)
-class ImuConfig:
-    """The `imu:` section; `settings()` gives the driver's ImuSettings (which checks the MPU6050's
-    own rules: rates the sample-rate divider can make, ranges the chip has, DLPF vs rate)."""
-
-    bus: int = option(1, doc="I2C bus number (/dev/i2c-N)", ge=0)
-    address_pl: int = option(0x68, doc="PL sensor address (AD0 low)", ge=0x68, le=0x69)
-    address_sa: int = option(0x69, doc="SA sensor address (AD0 high)", ge=0x68, le=0x69)
-    sample_rate_hz: float = option(1000.0, doc="FIFO rate (MODEL-NOTES §4: ≥ 1 kHz)", unit="Hz", gt=0)
-    dlpf_cfg: int = option(1, doc="digital low-pass setting 1..6 (1: 188 Hz)", ge=0, le=7)
-    gyro_fs_dps: int = option(250, doc="gyro full scale", unit="°/s", gt=0)
-    accel_fs_g: int = option(4, doc="accelerometer full scale", unit="g", gt=0)
-    sa_axis: str = option("x", doc="sensor axis along the SA shaft", choices=("x", "y", "z"))
-    calibration_file: str = option("/var/lib/tvsd/imu-calibration.json", doc="bias calibration file")
-    poll_interval_s: float = option(0.02, doc="FIFO poll period", unit="s", gt=0)
-
-    def settings(self) -> Any:
-        from tvsd.hw.mpu6050 import ImuSettings
-
-        return ImuSettings(
-            bus=self.bus,
-            addresses={"pl": self.address_pl, "sa": self.address_sa},
-            sample_rate_hz=self.sample_rate_hz,
-            dlpf_cfg=self.dlpf_cfg,
-            gyro_fs_dps=self.gyro_fs_dps,
-            accel_fs_g=self.accel_fs_g,
-            sa_axis=self.sa_axis,
-            calibration_file=Path(self.calibration_file),
-            poll_interval_s=self.poll_interval_s,
-        )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -179,20 +151,26 @@ class DevicesConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
-class McuConfig:
-    """The `mcu:` section: the serial link (tvsd/hw/mcu, firmware/PROTOCOL.md)."""
+class DaemonSettings:
+    """The `daemon:` section: tvsd's own periods, bounds and limits (tvsd/daemon/app.py)."""
 
-    port: str = option("/dev/serial0", doc="serial port of the MCU")
-    baud: int = option(2_000_000, doc="line rate; the firmware's", unit="bit/s", ge=9600)
-    state_rate_hz: float = option(
-        2500.0, doc="state frames per second: the ATmega328P carries 2.5 kHz", unit="Hz", ge=100, le=10000
+    status_period_s: float = option(
+        1.0, doc="status published, faults checked, systemd watchdog fed this often", unit="s", gt=0, le=10
     )
-    encoder_counts_per_rev: int = option(8192, doc="encoder counts per shaft revolution (×4)", ge=4)
-    watchdog_ms: int = option(
-        50, doc="firmware fail-safe: no heartbeat this long → PWM and laser off", unit="ms", ge=5, le=1000
+    drain_period_s: float = option(
+        0.02, doc="the control thread's ticks move into the recording this often", unit="s", gt=0, le=1
     )
-    link_timeout_ms: float = option(
-        40.0, doc="no state frame this long → the control thread holds PWM 0", unit="ms", gt=0, le=50
+    fault_window_s: float = option(
+        2.0, doc="full-rate control ticks recorded before each fault (the thread keeps 6.5 s)", unit="s", ge=0
+    )
+    fault_log_size: int = option(200, doc="faults listed (older ones are only counted)", ge=1)
+    home_timeout_s: float = option(30.0, doc="the stepper axes home within this after start", unit="s", gt=0)
+    max_rps: float = option(60.0, doc="speed requests beyond ±this are refused", unit="rev/s", gt=0)
+    stop_margin_s: float = option(
+        1.0, doc="at stop, the ramp down may take this much longer than the ramp says", unit="s", ge=0
+    )
+    stopped_rps: float = option(
+        0.5, doc="at stop, the aperture counts as stopped below this", unit="rev/s", gt=0
     )
 
 
@@ -206,10 +184,11 @@ class Config:
     sil: SilConfig | None = option(None, doc="SIL profile inline (instead of sil_profile)")
     reproduction: Reproduction | None = option(None, doc="paper figures to reproduce")
     scan: ScanSettings = option(ScanSettings(), doc="scan pipeline (baseline from geometry)")
-    imu: ImuConfig = option(ImuConfig(), doc="the two MPU6050s")
+    imu: ImuSettings = option(ImuSettings(), doc="the two MPU6050s")
     can: CanSettings = option(CanSettings(), doc="CAN bridge to a robot (off by default)")
     devices: DevicesConfig = option(DevicesConfig(), doc="hardware or SIL backend per device")
-    mcu: McuConfig = option(McuConfig(), doc="the MCU's serial link")
+    mcu: McuSettings = option(McuSettings(), doc="the MCU: serial link, rates, fail-safe times")
+    daemon: DaemonSettings = option(DaemonSettings(), doc="tvsd's own periods and limits")
 
     @property
     def sil_or_default(self) -> SilConfig:
@@ -248,11 +227,6 @@ def load_config(path: str | Path | None = None, *, params: str | None = None) ->
             "(one baseline for the whole scanner)"
         )
     cfg = dataclasses.replace(cfg, scan=dataclasses.replace(cfg.scan, baseline_m=cfg.geometry.baseline_m))
-    try:
-        cfg.imu.settings()  # the driver's own rules, with this file's line
-    except UsageError as exc:
-        line = data.key_lines.get("imu", data.line)
-        raise ConfigError(f"{path}:{line}: {exc}") from None
     if cfg.sil_profile is not None:
         profile = path.parent / cfg.sil_profile
         if not profile.is_file():

@@ -41,6 +41,16 @@ def option(
     return field(default=default, metadata=meta)
 
 
+class FieldError(UsageError):
+    """A value breaks a settings dataclass's own rule (checked in its `__post_init__`): names the
+    key, so a config file's error points at that key's line."""
+
+    def __init__(self, key: str, problem: str) -> None:
+        super().__init__(f"{key}: {problem}")
+        self.key = key
+        self.problem = problem
+
+
 class LinedDict(dict[str, Any]):
     """A YAML mapping that remembers the line of each key (1-based) and of itself."""
 
@@ -131,6 +141,9 @@ def build(cls: type, data: Any, where: Where) -> Any:
         return cls(**values)
     except ConfigError:
         raise
+    except FieldError as exc:
+        line = lines.get(exc.key, where.line)
+        raise Where(where.path, line, _join(where.key, exc.key)).error(exc.problem) from None
     except UsageError as exc:
         # A rule across keys (e.g. phi_min_deg < phi_max_deg), checked by the dataclass itself:
         # point at the section, since no single key is wrong on its own.
@@ -164,6 +177,10 @@ def convert(tp: Any, value: Any, where: Where, meta: typing.Mapping[str, Any]) -
         if not isinstance(value, bool):
             raise where.error(f"expected true or false, got {value!r}")
         return value
+    if tp is Path:
+        if not isinstance(value, str) or not value:
+            raise where.error(f"expected a file path, got {value!r}")
+        return Path(value)
     if tp is str:
         if not isinstance(value, str):
             raise where.error(f"expected text, got {value!r}")
@@ -184,8 +201,17 @@ def _number(tp: type, value: Any, where: Where, meta: typing.Mapping[str, Any]) 
     if tp is int and isinstance(value, float) and not value.is_integer():
         raise where.error(f"expected {kind}{unit}, got {value!r}")
     number = tp(value)
+    problem = _number_problem(number, value, meta)
+    if problem is not None:
+        raise where.error(problem)
+    return number
+
+
+def _number_problem(number: float, value: Any, meta: typing.Mapping[str, Any]) -> str | None:
+    """What is wrong with `number` under the field's rule (`value`: as the user wrote it)."""
+    unit = f" {meta['unit']}" if meta.get("unit") else ""
     if not math.isfinite(number):
-        raise where.error(f"expected a finite number{unit}, got {value!r}")
+        return f"expected a finite number{unit}, got {value!r}"
     for bound, ok, text in (
         ("gt", lambda b: number > b, "above"),
         ("ge", lambda b: number >= b, "at least"),
@@ -194,5 +220,24 @@ def _number(tp: type, value: Any, where: Where, meta: typing.Mapping[str, Any]) 
     ):
         limit = meta.get(bound)
         if limit is not None and not ok(limit):
-            raise where.error(f"must be {text} {limit:g}{unit}, got {value!r}")
-    return number
+            return f"must be {text} {limit:g}{unit}, got {value!r}"
+    return None
+
+
+def check(obj: Any) -> None:
+    """Check a settings dataclass built in code (an API request, a command-line value) against
+    the same `option` rules its YAML section is checked by: UsageError "key: problem".
+
+    Call it from `__post_init__`: then the rules hold for every instance, however it was made."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        meta = f.metadata
+        problem = None
+        if isinstance(value, bool):
+            continue
+        if isinstance(value, (int, float)):
+            problem = _number_problem(value, value, meta)
+        elif isinstance(value, str) and meta.get("choices") and value not in meta["choices"]:
+            problem = f"expected one of {', '.join(meta['choices'])}, got {value!r}"
+        if problem is not None:
+            raise FieldError(f.name, problem)

@@ -1,4 +1,4 @@
-"""`tvsctl analyze FILE`: the model doctor (DESIGN.md contract)."""
+"""`tvsctl analyze FILE`: the model doctor (the contract in docs/architecture.md)."""
 
 from __future__ import annotations
 
@@ -19,11 +19,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         description="Fit the paper's model to a recording (CSV contract or EMPS .mat), find what it "
         "misses, name the cause, extend the model and measure the gain on data not used for fitting.",
     )
-    p.add_argument("file", type=Path, help="recording CSV (DESIGN.md) or EMPS .mat file")
+    p.add_argument("file", type=Path, help="recording CSV (docs/architecture.md) or EMPS .mat file")
     p.add_argument(
         "--heldout", type=Path, metavar="FILE", help="judge on this recording (default: last third)"
     )
-    p.add_argument("--json", action="store_true", help="print the DESIGN.md JSON object")
+    p.add_argument("--json", action="store_true", help="print the JSON object of docs/architecture.md")
     p.add_argument("--report", type=Path, metavar="DIR", help="write report.md and figures into DIR")
     p.add_argument("--config", type=Path, help="scanner config for R, L, kM, ku (default: config/tvsd.yaml)")
     p.add_argument("--params", choices=("default", "paper"), default="default")

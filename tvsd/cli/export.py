@@ -1,4 +1,4 @@
-"""`tvsctl export REC --csv OUT`: a daemon recording's loop channel as DESIGN.md's recording CSV.
+"""`tvsctl export REC --csv OUT`: a daemon recording's loop channel as docs/architecture.md's recording CSV.
 
 t, u, omega, phi (and any other fields of the loop channel, as extra columns) come from the `loop`
 channel; the metadata lines name the source and carry the scalar settings of the config the daemon
@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "export",
         help="write a daemon recording's loop signals as the recording CSV (input of analyze)",
         description="Write the loop channel (t,u,omega,phi) of a recording made by tvsd as the "
-        "recording CSV of DESIGN.md, with the daemon's config as metadata lines.",
+        "recording CSV of docs/architecture.md, with the daemon's config as metadata lines.",
     )
     p.add_argument("rec", type=Path, metavar="REC", help="recording directory written by tvsd")
     p.add_argument("--csv", type=Path, required=True, metavar="OUT", help="CSV file to write")

@@ -163,7 +163,7 @@ def _settings(args: argparse.Namespace) -> ImuSettings:
 
     from tvsd.config import load_config
 
-    settings: ImuSettings = (load_config(args.config) if args.config else load_config()).imu.settings()
+    settings: ImuSettings = (load_config(args.config) if args.config else load_config()).imu
     return replace(settings, bus=args.bus) if args.bus is not None else settings
 
 

@@ -20,7 +20,7 @@ from typing import Any
 
 from tvsd.cli.output import print_json, print_pairs, print_table
 from tvsd.errors import EXIT_FAILURE, EXIT_OK, DeviceError, UsageError
-from tvsd.hw.mcu.link import LinkSettings, McuLink
+from tvsd.hw.mcu.link import McuLink, McuSettings
 from tvsd.hw.mcu.spec import load_spec
 
 DEFAULT_BAUD = 2_000_000
@@ -45,7 +45,7 @@ def _port(args: argparse.Namespace) -> Iterator[str]:
 
 @contextlib.asynccontextmanager
 async def _link(args: argparse.Namespace, port: str, heartbeat: bool) -> AsyncIterator[McuLink]:
-    link = McuLink(LinkSettings(port=port, baud=args.baud))
+    link = McuLink(McuSettings(port=port, baud=args.baud))
     await link.open()
     try:
         await link.identify()
@@ -66,7 +66,7 @@ def _run(args: argparse.Namespace, body: Callable[[str], Coroutine[Any, Any, int
 def cmd_identify(args: argparse.Namespace) -> int:
     async def body(port: str) -> int:
         spec = load_spec()
-        link = McuLink(LinkSettings(port=port, baud=args.baud), spec)
+        link = McuLink(McuSettings(port=port, baud=args.baud), spec)
         await link.open()
         try:
             # identify() refuses a mismatch with the fix in the message; report it the same way

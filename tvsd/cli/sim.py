@@ -100,9 +100,10 @@ def _gains(text: str) -> Gains:
         raise argparse.ArgumentTypeError(
             f"'{text}' must be four numbers Gp,Gd,Gr,G0, e.g. 6.31,0.5,18.89,100"
         )
-    if min(values[:3]) < 0 or values[3] <= 0:
-        raise argparse.ArgumentTypeError(f"'{text}': Gp, Gd, Gr must be ≥ 0 and G0 > 0")
-    return Gains(Gp=values[0], Gd=values[1], Gr=values[2], G0=values[3])
+    try:
+        return Gains(Gp=values[0], Gd=values[1], Gr=values[2], G0=values[3])
+    except UsageError as exc:
+        raise argparse.ArgumentTypeError(f"'{text}': {exc}") from None
 
 
 def _config(args: argparse.Namespace) -> Config:

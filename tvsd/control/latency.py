@@ -272,19 +272,20 @@ def compare(seconds: float, *, realtime: bool = True, rps: float = 25.0) -> dict
     """
     # Imported here: the runner builds on this module's primitives.
     from tvsd.config import load_config
-    from tvsd.control.runner import V_OMEGA, Runner, request_realtime
+    from tvsd.control.runner import Runner, request_realtime
     from tvsd.control.setup import Setup
 
     cfg = load_config(params="default")
     # The overrun latch is off: on a busy machine it would stop the law mid-measurement (and the
     # plant with it); the longest run of late ticks is reported against the daemon's latch instead.
     latch = cfg.control.overrun_streak_ticks
-    runner = Runner(Setup.from_config(cfg), realtime=realtime, streak_limit=LATCH_OFF)
-    period = runner.ints[K_PERIOD_NS] / NS
+    setup = Setup.from_config(cfg)
+    runner = Runner(setup, realtime=realtime, streak_limit=LATCH_OFF)
+    period = runner.period_s
     warm_up()
     runner.start(max_ticks=2)  # load the kernel outside the measurement
     runner.join(120.0)
-    runner = Runner(runner.setup, realtime=realtime, streak_limit=LATCH_OFF)
+    runner = Runner(setup, realtime=realtime, streak_limit=LATCH_OFF)
     setup_thread = request_realtime if realtime else None
     before = run_floor(seconds / 2, period, setup_thread)
     runner.scan(rps)
@@ -306,7 +307,7 @@ def compare(seconds: float, *, realtime: bool = True, rps: float = 25.0) -> dict
         "loop_histogram": histogram_rows(runner.hist),
         "floor_decades": decades(before[1] + after[1]),
         "loop_decades": decades(runner.hist),
-        "sil_rps": float(runner.vals[V_OMEGA]) / (2 * math.pi),
+        "sil_rps": runner.omega / (2 * math.pi),
         "overrun_latch_ticks": latch,
         "would_latch": ld["longest_late_run"] >= latch,
     }

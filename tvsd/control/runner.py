@@ -10,9 +10,13 @@ writes the command, and exchanges everything with the I/O side through prealloca
   K_FAULT_MEAS_NS (when the fault latched, and the measurement time it judged), K_SAMPLE_NS (when
   the MCU sampled that measurement; 0: unknown, the angle is used as it is) and K_MEAS_SEQ (the
   seqlock around φ, ω and that time).
-- `vals` (float64): inputs V_MODE … V_OMEGA (written by the I/O side), outputs V_U … V_DT.
+- `vals` (float64): the law's words (tvsd.control.layout), the measurement V_PHI, V_OMEGA (written
+  by the I/O side), outputs V_U … V_DT.
 - `hist`: the lateness histogram; `rec`: a ring of the last ticks (what the law saw and did),
-  indexed by tick number, which the asyncio side reads in batches.
+  indexed by tick number, which the asyncio side reads in batches (`recent_ticks`, TICK_DTYPE).
+
+These arrays and their word numbers are this package's own: everything outside tvsd/control
+steers the loop through the `Runner` methods (a test greps for it).
 
 Each input word is read once per tick; a multi-word update (the four gains) can straddle one
 tick (100 µs), which is harmless for gain sets that each satisfy the conditions.
@@ -40,6 +44,7 @@ ticks, so fixed-frequency effects and the delay stay continuous and a tick alloc
 from __future__ import annotations
 
 import ctypes
+import enum
 import math
 import os
 import threading
@@ -49,7 +54,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from tvsd.config import Gains
 from tvsd.control import latency as L
+from tvsd.control import layout as W
 from tvsd.control.law import robust_law
 from tvsd.control.scanning import ramp_toward, track
 from tvsd.control.setup import Setup
@@ -62,17 +69,34 @@ from tvsd.model import plant as K
 )
 K_SAMPLE_NS, K_MEAS_SEQ = L.N_TIMING + 7, L.N_TIMING + 8
 N_INTS = L.N_TIMING + 9
-FAULT_NONE, FAULT_OVERRUN, FAULT_STALE = 0, 1, 2
 
-# vals: inputs (I/O side writes) then outputs (kernel writes).
-(V_MODE, V_REF, V_GP, V_GD, V_GR, V_G0, V_UMAX, V_ACCEL, V_MAXLAG, V_FF, V_PHI, V_OMEGA) = range(12)
-(V_U, V_PHI_REF, V_OMEGA_REF, V_DT) = range(12, 16)
-N_VALS = 16
-MODE_IDLE, MODE_POSITION, MODE_SCAN = 0, 1, 2
 
-# rec columns: one row per tick, row = tick % len(rec).
-R_T, R_DT, R_PHI, R_OMEGA, R_PHI_REF, R_OMEGA_REF, R_UFF, R_U, R_LATE_US = range(9)
-N_REC = 9
+class LoopFault(enum.IntEnum):
+    """Why the loop holds its safe state (command 0) until `clear_fault`."""
+
+    NONE = 0
+    OVERRUN = 1  # `streak_limit` late ticks in a row
+    STALE = 2  # the newest measurement is older than `stale_after`
+
+
+FAULT_NONE, FAULT_OVERRUN, FAULT_STALE = LoopFault.NONE.value, LoopFault.OVERRUN.value, LoopFault.STALE.value
+
+# vals: the law's words (inputs the I/O side writes), the measurement, then outputs (kernel writes).
+V_MODE, V_REF, V_GP, V_GD, V_GR, V_G0, V_UMAX = W.MODE, W.REF, W.GP, W.GD, W.GR, W.G0, W.UMAX
+V_ACCEL, V_MAXLAG, V_FF = W.ACCEL, W.MAXLAG, W.FF
+V_PHI, V_OMEGA = W.N_LAW, W.N_LAW + 1
+(V_U, V_PHI_REF, V_OMEGA_REF, V_DT) = range(W.N_LAW + 2, W.N_LAW + 6)
+N_VALS = W.N_LAW + 6
+MODE_IDLE, MODE_POSITION, MODE_SCAN = W.MODE_OFF, W.MODE_POSITION, W.MODE_SCAN
+
+# rec columns: one row per tick, row = tick % len(rec); `recent_ticks` names them (TICK_DTYPE).
+TICK_FIELDS = ("t", "dt", "phi", "omega", "phi_ref", "omega_ref", "u_ff", "u", "late_us")
+R_T, R_DT, R_PHI, R_OMEGA, R_PHI_REF, R_OMEGA_REF, R_UFF, R_U, R_LATE_US = range(len(TICK_FIELDS))
+N_REC = len(TICK_FIELDS)
+# One tick as the law saw it: t (s since the loop started), dt (the measured step, s), φ and ω
+# measured (carried to the tick), φr and ωr, the feedforward u_ff and the command u (V), and how
+# late the tick woke (µs).
+TICK_DTYPE = np.dtype([(name, "<f8") for name in TICK_FIELDS])
 
 # The measured angle is carried forward at the measured speed from its sampling instant to each
 # tick, at most this far: beyond it the link is failing (the stale limit latches at 40 ms) and the
@@ -258,7 +282,14 @@ def request_realtime(priority: int = 80, cpu: int | None = None, lock: bool = Tr
 
 
 class Runner:
-    """The control thread and its shared arrays; SIL when built with `sil=True`."""
+    """The control thread and its shared arrays; SIL when built with `sil=True`.
+
+    The I/O side's whole interface to the loop: the mode (`position`, `scan`, `idle`), the gains
+    (`set_gains`, `gains`), the measurement (`measured`, `stale_after`), the safe state (`fault`,
+    `fault_code`, `clear_fault`, `inject_overrun`), and what the loop did (`recent_ticks`,
+    `stats`, `ticks`, `command`). Every call is a few word writes or a copy: safe from any thread,
+    and never a wait on the loop.
+    """
 
     def __init__(
         self,
@@ -270,7 +301,7 @@ class Runner:
         record: int = 65536,
         realtime: bool = False,
     ) -> None:
-        self.setup = setup
+        self._setup = setup  # the plant's arrays; the gains live in `vals` from here on
         self.sil = sil
         self.realtime = realtime
         self.realtime_report: Realtime | None = None
@@ -278,11 +309,7 @@ class Runner:
         self.ints[L.K_PERIOD_NS] = round((setup.dt if period_s is None else period_s) * L.NS)
         self.ints[K_STREAK_LIMIT] = streak_limit
         self.vals = np.zeros(N_VALS)
-        self.vals[V_GP : V_G0 + 1] = setup.gains.as_tuple()
-        self.vals[V_UMAX] = setup.u_max
-        self.vals[V_ACCEL] = setup.scan_accel_rps2
-        self.vals[V_MAXLAG] = setup.max_lag_rad
-        self.vals[V_FF] = 1.0 if setup.scan_feedforward else 0.0
+        W.pack_law(self.vals, setup)
         self.hist = np.zeros(L.N_BINS, dtype=np.int64)
         self.rec = np.zeros((record, N_REC))
         self.ts = np.zeros(2, dtype=np.int64)
@@ -304,18 +331,31 @@ class Runner:
                 setup.seed,
             )
 
-    # --- I/O side -------------------------------------------------------------------------------
+    # --- the law ----------------------------------------------------------------------------------
     def position(self, ref_rad: float) -> None:
+        """Position mode: hold the shaft at `ref_rad`."""
         self.vals[V_REF] = ref_rad
         self.vals[V_MODE] = MODE_POSITION
 
     def scan(self, rps: float) -> None:
+        """Scanning mode: the speed reference ramps to `rps` and the angle reference follows it."""
         self.vals[V_REF] = rps
         self.vals[V_MODE] = MODE_SCAN
 
     def idle(self) -> None:
+        """No law: command 0."""
         self.vals[V_MODE] = MODE_IDLE
 
+    def set_gains(self, gains: Gains) -> None:
+        """The law's gains from the next tick on (the four words may straddle one tick: harmless
+        between gain sets that each satisfy the conditions)."""
+        W.write_gains(self.vals, gains)
+
+    def gains(self) -> Gains:
+        """The gains the loop runs with now: the one source of truth once the loop is built."""
+        return W.read_gains(self.vals)
+
+    # --- the measurement (hardware mode) ------------------------------------------------------------
     def measured(
         self, phi: float, omega: float, t_ns: int | None = None, sample_ns: int | None = None
     ) -> None:
@@ -331,17 +371,23 @@ class Runner:
         ints[K_MEAS_SEQ] += 1
         ints[K_MEAS_NS] = time.monotonic_ns() if t_ns is None else t_ns
 
+    @property
+    def omega(self) -> float:
+        """The latest measured speed, rad/s (SIL: the plant's)."""
+        return float(self.vals[V_OMEGA])
+
     def stale_after(self, seconds: float) -> None:
         """Hold the safe state when the newest measurement is older than this (0: never)."""
         self.ints[K_STALE_NS] = round(seconds * L.NS)
 
+    # --- the safe state ----------------------------------------------------------------------------
     @property
     def fault(self) -> bool:
         return bool(self.ints[K_FAULT])
 
     @property
-    def fault_code(self) -> int:
-        return int(self.ints[K_FAULT])
+    def fault_code(self) -> LoopFault:
+        return LoopFault(int(self.ints[K_FAULT]))
 
     @property
     def fault_after_measurement_s(self) -> float:
@@ -352,34 +398,65 @@ class Runner:
         self.ints[L.K_STREAK] = 0
         self.ints[K_FAULT] = FAULT_NONE
 
+    def inject_overrun(self, periods: float) -> None:
+        """Fault injection: every tick burns `periods` loop periods of wall time inside the
+        kernel (0: stop), so ticks wake late and the overrun streak latches for certain."""
+        self.ints[K_BUSY_NS] = round(periods * self.ints[L.K_PERIOD_NS])
+
+    # --- what the loop did ---------------------------------------------------------------------------
     @property
     def command(self) -> float:
         return float(self.vals[V_U])
 
     @property
+    def period_s(self) -> float:
+        return int(self.ints[L.K_PERIOD_NS]) / L.NS
+
+    @property
     def alive(self) -> bool:
+        """The thread exists (it may still be loading the kernel: see `is_running`)."""
         return self._thread is not None and self._thread.is_alive()
+
+    @property
+    def is_running(self) -> bool:
+        """The kernel is in its loop (loaded, ticking, not yet stopped)."""
+        return bool(self.ints[L.K_RUNNING])
 
     @property
     def ticks(self) -> int:
         return int(self.ints[L.K_TICKS])
 
+    @property
+    def start_ns(self) -> int:
+        """CLOCK_MONOTONIC when the loop started: a tick's wake time is start_ns + t·1e9."""
+        return int(self.ints[L.K_START_NS])
+
+    @property
+    def ring_size(self) -> int:
+        """How many ticks `recent_ticks` can give at most (6.5 s at 10 kHz by default)."""
+        return int(self.rec.shape[0])
+
     def stats(self) -> L.Jitter:
         return L.jitter(self.ints, self.hist)
 
-    def recent(self, n: int | None = None) -> np.ndarray:
-        """The last n recorded ticks, oldest first (a copy)."""
+    def lateness_histogram(self) -> np.ndarray:
+        """Ticks per lateness bin (lower edges: tvsd.control.latency.EDGES_NS), a copy."""
+        return self.hist.copy()
+
+    def recent_ticks(self, n: int | None = None) -> np.ndarray:
+        """The last n recorded ticks, oldest first: a copy, a structured array of TICK_DTYPE."""
         ticks, size = self.ticks, self.rec.shape[0]
         n = min(ticks, size) if n is None else min(n, ticks, size)
         idx = np.arange(ticks - n, ticks) % size
-        return self.rec[idx].copy()
+        return self.rec[idx].view(TICK_DTYPE).reshape(n)
 
     # --- lifecycle --------------------------------------------------------------------------------
     def start(self, max_ticks: int = 0) -> None:
+        """Start the thread; with max_ticks > 0 the loop stops by itself after that many more ticks."""
         if self._thread is not None and self._thread.is_alive():
             raise RuntimeError("control loop already running")
         self.ints[L.K_STOP] = 0
-        self.ints[L.K_MAX_TICKS] = max_ticks
+        self.ints[L.K_MAX_TICKS] = self.ticks + max_ticks if max_ticks > 0 else 0
         self._thread = threading.Thread(target=self._main, name="tvsd-control", daemon=True)
         self._thread.start()
 
@@ -387,7 +464,7 @@ class Runner:
         if self.realtime:
             self.realtime_report = request_realtime()
         cpu0 = time.thread_time()
-        s = self.setup
+        s = self._setup
         control_loop(
             self.ints,
             self.vals,

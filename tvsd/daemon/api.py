@@ -1,7 +1,9 @@
 """The daemon's JSON-RPC methods: check the request, act through the daemon, say what happened.
 
 Each refusal is an RpcError with what was asked, why not, and what to do; the daemon stays up.
-Methods (DESIGN.md, "Daemon API"): status, speed, scan_start, scan_stop, aim, aim_xyz, gains_get,
+The methods read the daemon's state and call its command methods (tvsd.daemon.app); they never
+change its parts themselves. Results become JSON here, at the edge.
+Methods (docs/architecture.md, "Daemon API"): status, speed, scan_start, scan_stop, aim, aim_xyz, gains_get,
 gains_set, imu_calibrate, record_start, record_stop, record_window, faults_list, faults_clear,
 inject_fault (SIL devices only), shutdown. The point stream and status are subscriptions
 (tvsd/daemon/rpc.py: `subscribe`).
@@ -16,18 +18,15 @@ from dataclasses import asdict
 from typing import TYPE_CHECKING, Any
 
 from tvsd.config import Gains
-from tvsd.control import latency as L
-from tvsd.control import runner as RN
 from tvsd.control.conditions import check_gains, warnings
 from tvsd.daemon.rpc import DEVICE_ERROR, INVALID_PARAMS, STATE_ERROR, RpcError
+from tvsd.daemon.state import DaemonState
 from tvsd.errors import TvsdError, UsageError
+from tvsd.hw.can.frames import Ack, Command, CommandCode, Reason
 from tvsd.scan import geometry
 
 if TYPE_CHECKING:
     from tvsd.daemon.app import Daemon
-
-MAX_RPS = 60.0
-MAX_WINDOW_S = 6.0  # the control thread's ring holds 65536 ticks = 6.5 s
 
 
 def _rpc_error(exc: TvsdError) -> RpcError:
@@ -44,29 +43,30 @@ class Api:
         }
 
     def _refuse_in_fault(self) -> None:
-        if self.d.state == "starting":
+        if self.d.state == DaemonState.STARTING:
             raise RpcError(STATE_ERROR, "the devices are coming up (MCU link, IMU): retry in a second")
-        if self.d.state == "fault":
+        if self.d.state == DaemonState.FAULT:
             raise RpcError(
                 STATE_ERROR,
                 "the drive is in its safe state after a fault; "
                 "clear it with faults_clear (tvsctl faults --clear) first",
             )
+        if self.d.state == DaemonState.STOPPING:
+            raise RpcError(STATE_ERROR, "the daemon is stopping: the aperture ramps down; start it again")
 
     async def api_status(self) -> dict[str, Any]:
-        return self.d.status_dict()
+        return self.d.status().to_json()
 
     async def api_speed(self, rps: float) -> dict[str, Any]:
         self._refuse_in_fault()
-        if not math.isfinite(rps) or abs(rps) > MAX_RPS:
+        max_rps = self.d.cfg.daemon.max_rps
+        if not math.isfinite(rps) or abs(rps) > max_rps:
             raise RpcError(
                 INVALID_PARAMS,
-                f"rps {rps:g} is outside ±{MAX_RPS:g} rev/s (the drive holds 25 at 5.9 V of 12)",
+                f"rps {rps:g} is outside ±{max_rps:g} rev/s (daemon.max_rps; the drive holds 25 at "
+                "5.9 V of 12)",
             )
-        self.d.target_rps = rps
-        self.d.runner.scan(rps)
-        if self.d.state == "idle" and rps != 0:
-            self.d.set_state("spinning")
+        self.d.set_speed(rps)
         return {"rps_setpoint": rps}
 
     async def api_scan_start(self) -> dict[str, Any]:
@@ -74,22 +74,17 @@ class Api:
         if abs(self.d.measured_rps) < 1.0:
             raise RpcError(STATE_ERROR, "the aperture is not spinning: set a speed first (tvsctl speed 25)")
         try:
-            self.d.drive.laser(True)
+            self.d.start_scan()
         except TvsdError as exc:
             raise _rpc_error(exc) from None
-        self.d.start_stream()
-        self.d.set_state("scanning")
-        return {"state": self.d.state}
+        return {"state": str(self.d.state)}
 
     async def api_scan_stop(self) -> dict[str, Any]:
-        if self.d.state == "scanning":
-            self.d.set_state("spinning")
-        self.d.stream = self.d.feed = None
         try:
-            self.d.drive.laser(False)
+            self.d.stop_scan()
         except TvsdError as exc:
             raise _rpc_error(exc) from None
-        return {"state": self.d.state}
+        return {"state": str(self.d.state)}
 
     async def api_aim(self, phi_deg: float, gamma_deg: float) -> dict[str, Any]:
         s = self.d.cfg.scan
@@ -102,12 +97,9 @@ class Api:
                 f"[{s.phi_min_deg:g}, {s.phi_max_deg:g}]°, |γ| ≤ {s.gamma_max_deg:g}°",
             )
         try:
-            self.d.drive.aim(math.radians(phi_deg), math.radians(gamma_deg))
+            self.d.aim(phi_deg, gamma_deg)  # a running scan goes on at the new angles
         except TvsdError as exc:
             raise _rpc_error(exc) from None
-        self.d.aim_deg = (phi_deg, gamma_deg)
-        if self.d.state == "scanning":
-            self.d.start_stream()  # the running scan's points at the new angles
         return {"phi_deg": phi_deg, "gamma_deg": gamma_deg}
 
     async def api_aim_xyz(self, x: float, y: float, z: float) -> dict[str, Any]:
@@ -118,25 +110,27 @@ class Api:
         return await self.api_aim(math.degrees(a.phi), math.degrees(a.gamma))
 
     async def api_gains_get(self) -> dict[str, Any]:
-        g = self.d.runner.vals[RN.V_GP : RN.V_G0 + 1]
-        return {"Gp": float(g[0]), "Gd": float(g[1]), "Gr": float(g[2]), "G0": float(g[3])}
+        return asdict(self.d.runner.gains())  # what the control thread runs with
 
     async def api_gains_set(self, Gp: float, Gd: float, Gr: float, G0: float) -> dict[str, Any]:
-        if not all(math.isfinite(v) for v in (Gp, Gd, Gr, G0)) or min(Gp, Gd, Gr) < 0 or G0 <= 0:
-            raise RpcError(INVALID_PARAMS, "gains must be finite, Gp, Gd, Gr ≥ 0 and G0 > 0")
-        gains = Gains(Gp=Gp, Gd=Gd, Gr=Gr, G0=G0)
+        try:
+            gains = Gains(Gp=Gp, Gd=Gd, Gr=Gr, G0=G0)
+        except UsageError as exc:
+            raise RpcError(
+                INVALID_PARAMS, f"gains: {exc} (control.gains in the config has the same rules)"
+            ) from None
         conds = check_gains(gains, self.d.cfg.plant, self.d.cfg.control.disturbance_bound_rad_s2)
-        self.d.runner.vals[RN.V_GP : RN.V_G0 + 1] = gains.as_tuple()
-        self.d.mark("gains", **asdict(gains))
-        return {"gains": {"Gp": Gp, "Gd": Gd, "Gr": Gr, "G0": G0}, "warnings": warnings(conds)}
+        self.d.set_gains(gains)
+        return {"gains": asdict(gains), "warnings": warnings(conds)}
 
     async def api_imu_calibrate(self, seconds: float = 5.0) -> dict[str, Any]:
         if self.d.imu is None:
             raise RpcError(
                 STATE_ERROR, "no IMU is running (devices.imu is off or it failed to start: see faults)"
             )
-        if not 1 <= seconds <= 60:
-            raise RpcError(INVALID_PARAMS, f"seconds {seconds:g}: use 1 .. 60")
+        longest = self.d.cfg.imu.calibrate_max_s
+        if not 1 <= seconds <= longest:
+            raise RpcError(INVALID_PARAMS, f"seconds {seconds:g}: use 1 .. {longest:g} (imu.calibrate_max_s)")
         if abs(self.d.measured_rps) > 0.05:
             raise RpcError(
                 STATE_ERROR, "the aperture is turning: stop it (tvsctl speed 0) to calibrate at rest"
@@ -151,39 +145,31 @@ class Api:
     async def api_record_start(self) -> dict[str, Any]:
         if self.d.recording is not None:
             raise RpcError(STATE_ERROR, f"already recording into {self.d.recording.path}")
-        path = self.d.data_dir / time.strftime("rec-%Y%m%d-%H%M%S")
         try:
-            self.d.open_recording(path)
-        except OSError as exc:
-            raise RpcError(DEVICE_ERROR, f"cannot record into {path}: {exc}; check --data-dir") from None
+            path = self.d.start_recording()
+        except TvsdError as exc:
+            raise _rpc_error(exc) from None
         return {"recording": str(path)}
 
     async def api_record_stop(self) -> dict[str, Any]:
-        path = self.d.recording.path if self.d.recording is not None else None
-        await self.d.close_recording()
+        path = await self.d.stop_recording()
         return {"recorded": str(path) if path else None}
 
     async def api_record_window(self, seconds: float = 1.0) -> dict[str, Any]:
         if self.d.recording is None:
             raise RpcError(STATE_ERROR, "not recording: start a recording first (tvsctl record start)")
-        if not 0 < seconds <= MAX_WINDOW_S:
-            raise RpcError(
-                INVALID_PARAMS, f"seconds {seconds:g}: the control thread keeps 0 .. {MAX_WINDOW_S:g} s"
-            )
-        ticks = self.d.full_window(seconds, "request")
+        kept = math.floor(self.d.runner.ring_size / self.d.cfg.control.rate_hz)  # 6 s at 10 kHz
+        if not 0 < seconds <= kept:
+            raise RpcError(INVALID_PARAMS, f"seconds {seconds:g}: the control thread keeps 0 .. {kept:g} s")
+        ticks = self.d.record_window(seconds, "request")
         return {"ticks": ticks, "recording": str(self.d.recording.path)}
 
     async def api_faults_list(self) -> list[dict[str, Any]]:
-        return [asdict(f) for f in self.d.faults]
+        return [f.to_json() for f in self.d.faults.entries()]
 
     async def api_faults_clear(self) -> dict[str, Any]:
-        self.d.faults.clear()
-        self.d.runner.clear_fault()
-        if self.d.state == "fault":
-            self.d.runner.idle()
-            self.d.target_rps = 0.0
-            self.d.set_state("idle")
-        return {"state": self.d.state}
+        self.d.clear_faults()
+        return {"state": str(self.d.state)}
 
     async def api_inject_fault(self, device: str, fault: str) -> dict[str, Any]:
         """Fault injection for tests and demos. SIL devices only: `mcu` link_loss / link_restore,
@@ -193,7 +179,7 @@ class Api:
             if device == "control":
                 if fault != "overrun":
                     raise UsageError(f"unknown control fault {fault!r}: use overrun")
-                self.d.runner.ints[RN.K_BUSY_NS] = self.d.runner.ints[L.K_PERIOD_NS] * 3
+                self.d.inject_overrun()
                 return {"device": device, "fault": fault, "t_mono": time.monotonic()}
             if device == "mcu":
                 return self.d.drive.inject(fault)
@@ -208,4 +194,21 @@ class Api:
 
     async def api_shutdown(self) -> dict[str, Any]:
         asyncio.get_running_loop().call_later(0.05, self.d.request_stop)  # reply first
-        return {"state": "stopping"}
+        return {"state": str(DaemonState.STOPPING)}
+
+    async def can_command(self, cmd: Command) -> Ack:
+        """A robot's command over CAN: the same methods as the API, a refusal as a refused ack."""
+        try:
+            if cmd.code == CommandCode.START:
+                await self.api_scan_start()
+            elif cmd.code == CommandCode.STOP:
+                await self.api_scan_stop()
+            elif cmd.code == CommandCode.SPEED and cmd.rps is not None:
+                await self.api_speed(cmd.rps)
+            elif cmd.code == CommandCode.AIM and cmd.phi_deg is not None and cmd.gamma_deg is not None:
+                await self.api_aim(cmd.phi_deg, cmd.gamma_deg)
+            else:
+                return Ack.refused(Reason.REFUSED)
+        except RpcError:
+            return Ack.refused(Reason.REFUSED)
+        return Ack.ok()

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tvsd.daemon.state import DaemonState
 from tvsd.rpc.client import RpcClient
 
 
@@ -43,7 +44,7 @@ def bench_point_latency(points: int = 200, rps: float = 25.0) -> dict[str, float
             while not sock.exists() and time.monotonic() < deadline:
                 time.sleep(0.1)
             with RpcClient(sock) as ctl:
-                while ctl.call("status")["state"] == "starting":  # type: ignore[index]
+                while ctl.call("status")["state"] == DaemonState.STARTING:  # type: ignore[index]
                     time.sleep(0.1)
                 ctl.call("speed", rps=rps)
                 while abs(float(ctl.call("status")["rps"]) - rps) > 0.5:  # type: ignore[index]

@@ -15,9 +15,9 @@ the point stream's drive model). So the exchange with the MCU runs at the state 
 the ATmega328P), one control tick (0.1 ms) behind at most, and the 10 kHz kernel never waits for it.
 
 Safety, in three layers: the control thread holds PWM 0 once the newest state frame is older than
-cfg.mcu.link_timeout_ms (40 ms: tvsd.control.runner, FAULT_STALE); the link reports the loss
-after 50 ms without any frame (on_link(False)); the firmware cuts PWM and laser watchdog_ms after
-the last heartbeat (heartbeats go every watchdog_ms / 4).
+cfg.mcu.link_timeout_ms (40 ms: tvsd.control.runner, LoopFault.STALE); the link reports the loss
+after cfg.mcu.link_lost_ms (50 ms) without any frame (on_link(False)); the firmware cuts PWM and
+laser watchdog_ms after the last heartbeat (heartbeats go every watchdog_ms / 4).
 """
 
 from __future__ import annotations
@@ -25,22 +25,21 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from tvsd.config import Config
-from tvsd.control import runner as RN
 from tvsd.control.runner import Runner
 from tvsd.errors import ConfigError, DeviceError, UsageError
-from tvsd.hw.mcu.link import FaultEvent, LinkSettings, McuLink, PulseEvent, StateSample
+from tvsd.hw.mcu.link import FaultEvent, McuLink, PulseEvent, StateSample
 from tvsd.hw.mcu.spec import CONTROL_TICK_HZ
 from tvsd.hw.mcu.steppers import Steppers
 
 SPEED_WINDOW_S = 2e-3
 SENT_HISTORY = 2048  # PWM frames kept: 0.8 s at 2.5 kHz (the point stream looks back < 0.5 s)
 SIL_TARGET_RANGE_M = 2.0  # the SIL scene: a surface 2 m from the PL (tvsd/sim/scene.py)
-HOME_TIMEOUT_S = 30.0
 SIL_FAULTS = ("link_loss", "link_restore")
 
 
@@ -107,11 +106,8 @@ class DriveLink:
             self.plant.step()  # loads the plant kernel here, not as a GIL stall in its thread
             self.plant.start()
             port = self.plant.mcu.port
-        settings = LinkSettings(
-            port=port, baud=m.baud, heartbeat_period_s=m.watchdog_ms / 4e3, link_timeout_s=0.05
-        )
         link = McuLink(
-            settings,
+            replace(m, port=port),
             on_state=self._on_state,
             on_pulse=self.on_pulse,
             on_fault=self.on_fault,
@@ -157,7 +153,7 @@ class DriveLink:
         self._frames += 1
         j = (self._frames - min(self._frames, len(self._ticks))) % len(self._ticks)  # oldest kept
         dt = (s.mcu_ticks - int(self._ticks[j])) / self.clock_hz
-        omega = (phi - float(self._phi[j])) / dt if dt > 0 else float(self.runner.vals[RN.V_OMEGA])
+        omega = (phi - float(self._phi[j])) / dt if dt > 0 else self.runner.omega
         # When the MCU sampled it, on the host's clock: the law carries the angle forward from
         # there. Unknown before the clock sync, and for a frame placed by the fit alone.
         sampled = self.to_host(s.mcu_ticks) if s.exact else math.nan

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 from scipy.signal import lfilter
@@ -35,6 +35,7 @@ from scipy.signal import lfilter
 from tvsd.hw.imu_reader import ImuBatch
 from tvsd.hw.mpu6050 import SG_HALF, AngularAccelerationStream
 from tvsd.scan.compensation import DriveModel
+from tvsd.scan.points import Point
 
 VoltageHistory = Callable[[np.ndarray], np.ndarray]  # MCU times (s) → commanded voltage (V)
 HostToMcu = Callable[[float], float]  # host time (time.monotonic, s) → MCU time (s); NaN: not yet
@@ -43,7 +44,7 @@ HostToMcu = Callable[[float], float]  # host time (time.monotonic, s) → MCU ti
 class SampleSink(Protocol):
     """tvsd.scan.stream.PointStream's input side."""
 
-    def add_samples(self, t0: float, imu: np.ndarray, drive: np.ndarray) -> list[dict[str, Any]]: ...
+    def add_samples(self, t0: float, imu: np.ndarray, drive: np.ndarray) -> list[Point]: ...
 
 
 class ImuFeed:
@@ -84,7 +85,7 @@ class ImuFeed:
         self._current = 0.0  # the drive model's current lag state (its "end" value), V
 
     # --- input ---------------------------------------------------------------------------------
-    def push(self, batch: ImuBatch) -> list[dict[str, Any]]:
+    def push(self, batch: ImuBatch) -> list[Point]:
         """One reader batch (any sensor; only "sa" is used); returns the points completed."""
         if batch.sensor != "sa" or len(batch.k) == 0:
             return []
@@ -117,7 +118,7 @@ class ImuFeed:
         last = math.floor((self._t[-1] - self.t0) / self.dt - 0.5)
         return self._emit(last + 1 - self.cells)
 
-    def advance(self, t_mcu: float) -> list[dict[str, Any]]:
+    def advance(self, t_mcu: float) -> list[Point]:
         """Cells up to MCU time `t_mcu` (α = 0 where no IMU data came): for a lost IMU."""
         if not math.isfinite(t_mcu):
             return []
@@ -140,8 +141,8 @@ class ImuFeed:
         self._joined = np.concatenate([self._joined, joined])
 
     # --- output --------------------------------------------------------------------------------
-    def _emit(self, count: int) -> list[dict[str, Any]]:
-        points: list[dict[str, Any]] = []
+    def _emit(self, count: int) -> list[Point]:
+        points: list[Point] = []
         if count > 0:
             start = self.t0 + self.cells * self.dt
             centres = start + (np.arange(count) + 0.5) * self.dt

@@ -10,7 +10,7 @@ the bus.
 
 State ("off", "starting", "ok", "degraded", "lost"), per sensor and overall (the worst):
 - "degraded": the reader's own verdict (two bus failures in a row; it retries with back-off);
-- "lost": no sample delivered for more than `lost_after_s` = 5 × poll interval + 0.1 s (0.2 s at
+- "lost": no sample delivered for more than `lost_after_s` = 5 × poll interval + imu.lost_margin_s (0.2 s at
   the default 20 ms), or none since start after bring-up (0.13 s) + that bound. Why 5 polls: in
   normal running every poll (20 ms) delivers; one failed transfer costs a 5–10 ms back-off and a
   poll; five polls without data is past the FIFO's 85 ms at 1 kHz, so samples have surely been
@@ -60,8 +60,6 @@ NAMES = ("pl", "sa")
 BACKENDS = ("hardware", "sil", "off")
 STATES = ("off", "ok", "starting", "degraded", "lost")  # by severity: the overall is the worst
 LOST_POLLS = 5
-LOST_MARGIN_S = 0.1
-CALIBRATE_MAX_S = 60.0
 INJECT_KINDS = ("loss", "restore")
 SNAPSHOT_S = 0.2  # how often the reader thread refreshes a sensor's fitted rate and loss count
 
@@ -101,7 +99,7 @@ class ImuService:
         self.on_batch, self.on_state = on_batch, on_state
         self.bus_timing, self.seed = bus_timing, seed
         self._open_bus = open_bus
-        self.lost_after_s = LOST_POLLS * settings.poll_interval_s + LOST_MARGIN_S
+        self.lost_after_s = LOST_POLLS * settings.poll_interval_s + settings.lost_margin_s
         self.clock: Clock = MonotonicClock()
         self.bus: SMBusLike | None = None
         self.reader: ImuReader | None = None
@@ -124,7 +122,7 @@ class ImuService:
         """The daemon's IMUs from its config: the `imu:` section, and in SIL the twins moved by
         the running drive plant (a tvsd.sim.mcu_plant.McuPlant, PlantMotion on the configured SA
         axis, PL coupled at 0.3), or at rest without one. Set on_batch / on_state, then start()."""
-        return cls(cfg.imu.settings(), backend, plant=plant, seed=cfg.sil_or_default.seed)
+        return cls(cfg.imu, backend, plant=plant, seed=cfg.sil_or_default.seed)
 
     # --- life cycle --------------------------------------------------------------------------------
     async def start(self) -> None:
@@ -334,9 +332,10 @@ class ImuService:
         "accel_rest_m_s2", "samples", "chip"}}}."""
         rate = self.settings.sample_rate_hz
         least = cal.MIN_SAMPLES / (0.9 * rate)  # the sensor clock may run 10 % slow
-        if not (isinstance(seconds, (int, float)) and least <= seconds <= CALIBRATE_MAX_S):
+        longest = self.settings.calibrate_max_s
+        if not (isinstance(seconds, (int, float)) and least <= seconds <= longest):
             raise UsageError(
-                f"seconds = {seconds!r}: give {math.ceil(least * 10) / 10:g} .. {CALIBRATE_MAX_S:g} s "
+                f"seconds = {seconds!r}: give {math.ceil(least * 10) / 10:g} .. {longest:g} s "
                 f"(at least {cal.MIN_SAMPLES} samples at {rate:g} Hz)"
             )
         if self.reader is None:

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from tvsd import __version__
+from tvsd.daemon.state import DaemonState
 from tvsd.errors import EXIT_OK, EXIT_USAGE, TvsdError
 
 if TYPE_CHECKING:
@@ -73,7 +74,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         from dataclasses import replace
 
         # the twins' calibration lives with the SIL data: a board's file must not apply to them
-        imu = replace(cfg.imu, calibration_file=str(args.data_dir / "imu-calibration-sil.json"))
+        imu = replace(cfg.imu, calibration_file=args.data_dir / "imu-calibration-sil.json")
         cfg = replace(cfg, devices=replace(cfg.devices, mcu="sil", imu="sil"), imu=imu)
     config_path = args.config or config_dir() / "tvsd.yaml"
     try:
@@ -116,7 +117,7 @@ async def _serve(args: argparse.Namespace, cfg: Config, config_text: str) -> int
 
 
 async def _demo(daemon: Daemon) -> None:
-    while daemon.state == "starting":
+    while daemon.state == DaemonState.STARTING:
         await asyncio.sleep(0.1)
     await daemon.api.api_speed(DEMO_RPS)
     while abs(daemon.measured_rps - DEMO_RPS) > 0.5:

@@ -1,12 +1,13 @@
 """What the daemon records, channel by channel, into one Recorder (tvsd/recording/writer.py).
 
 Channels of a daemon recording (numpy structured rows; `tvsctl export REC --csv` writes `loop` as
-DESIGN.md's recording CSV, and `tvsd.recording.writer.open_recording(REC).channels[name]` gives
+docs/architecture.md's recording CSV, and `tvsd.recording.writer.open_recording(REC).channels[name]` gives
 any of them to numpy/pandas users):
 
-- `loop`       1 kHz bins of the control thread's ticks: t, u, omega, phi (DESIGN.md's CSV).
+- `loop`       1 kHz bins of the control thread's ticks: t, u, omega, phi (docs/architecture.md's CSV).
 - `loop_full`  every 10 kHz tick of a window: on request (`record_window`) and on every fault,
-               the seconds before it (the control thread keeps 6.5 s); columns of RUNNER_COLUMNS.
+               the seconds before it (the control thread keeps 6.5 s); the fields of the runner's
+               TICK_DTYPE (tvsd.control.runner).
 - `reference`  1 kHz bins of phi_ref, omega_ref and the feedforward u_ff: the daemon's own
                reference, which the model doctor can use as an instrument in closed loop.
 - `pulses`     every pulse event from the MCU: host time, MCU ticks, channel (0 zero, 1 optical).
@@ -22,13 +23,13 @@ from typing import Any
 
 import numpy as np
 
-from tvsd.control import runner as RN
+from tvsd.control.runner import TICK_DTYPE, Runner
 from tvsd.recording.format import LOOP_CHANNEL, LOOP_FIELDS
 from tvsd.recording.writer import Recorder
 from tvsd.scan.points import FIELDS as POINT_FIELDS
+from tvsd.scan.points import Point
 
-RECORD_PERIOD_S = 1e-3  # 10 kHz ticks → a 1 kHz recording (DESIGN.md's sample_rate_hz)
-RUNNER_COLUMNS = ("t", "dt", "phi", "omega", "phi_ref", "omega_ref", "u_ff", "u", "late_us")
+RECORD_PERIOD_S = 1e-3  # 10 kHz ticks → a 1 kHz recording (docs/architecture.md: sample_rate_hz)
 REFERENCE_FIELDS = (("t", "<f8"), ("phi_ref", "<f8"), ("omega_ref", "<f8"), ("u_ff", "<f8"))
 PULSE_FIELDS = (("t_host", "<f8"), ("mcu_ticks", "<i8"), ("channel", "<i2"))
 IMU_FIELDS = (
@@ -41,31 +42,41 @@ IMU_SENSORS = {"pl": 0, "sa": 1}
 class SessionRecording:
     """One recording of the running daemon; every method is for the event-loop thread."""
 
-    def __init__(self, path: Path, config_text: str) -> None:
+    def __init__(self, path: Path, config_text: str, *, from_tick: int = 0) -> None:
+        """Record into `path` (created), the control ticks from tick number `from_tick` on."""
         self.path = path
+        self._last_tick = from_tick
         self.recorder = Recorder(path, config_text)
         r = self.recorder
         self.loop = r.channel(LOOP_CHANNEL, list(LOOP_FIELDS))
         self.reference = r.channel("reference", list(REFERENCE_FIELDS))
-        self.full = r.channel("loop_full", [(c, "<f8") for c in RUNNER_COLUMNS])
+        self.full = r.channel("loop_full", TICK_DTYPE.descr)
         self.pulses = r.channel("pulses", list(PULSE_FIELDS))
         point_fields = [(f, "<i8" if f == "flags" else "<f8") for f in POINT_FIELDS]
         self.points = r.channel("points", [*point_fields, ("t_mono", "<f8")])
         self.imu = r.channel("imu", list(IMU_FIELDS))
-        self._carry = np.zeros((0, RN.N_REC))  # ticks of the open bin
+        self._carry = np.zeros(0, dtype=TICK_DTYPE)  # ticks of the open bin
 
     @property
     def error(self) -> BaseException | None:
         return self.recorder.error
 
+    def drain(self, runner: Runner) -> None:
+        """The control ticks since the last drain (as many as the runner still keeps)."""
+        ticks = runner.ticks
+        n = min(ticks - self._last_tick, runner.ring_size)
+        self._last_tick = ticks
+        if n > 0:
+            self.loop_ticks(runner.recent_ticks(n))
+
     def loop_ticks(self, rows: np.ndarray) -> None:
-        """Average ticks into RECORD_PERIOD_S bins of their own time stamps: a uniform time grid
-        whatever the wake-up jitter; a stall longer than a bin leaves a gap, which `tvsctl export`
-        reports. The last, unfinished bin waits for the next batch."""
+        """Average ticks (TICK_DTYPE rows) into RECORD_PERIOD_S bins of their own time stamps: a
+        uniform time grid whatever the wake-up jitter; a stall longer than a bin leaves a gap,
+        which `tvsctl export` reports. The last, unfinished bin waits for the next batch."""
         rows = np.concatenate([self._carry, rows]) if len(self._carry) else rows
         if not len(rows):
             return
-        bins = np.floor(rows[:, RN.R_T] / RECORD_PERIOD_S).astype(np.int64)
+        bins = np.floor(rows["t"] / RECORD_PERIOD_S).astype(np.int64)
         done = bins < bins[-1]
         self._carry = rows[~done]
         if not np.any(done):
@@ -74,28 +85,25 @@ class SessionRecording:
         ids, start, count = np.unique(bins, return_index=True, return_counts=True)
         t = (ids + 1) * RECORD_PERIOD_S
 
-        def mean(col: int) -> np.ndarray:
-            return np.add.reduceat(rows[:, col], start) / count
+        def mean(field: str) -> np.ndarray:
+            return np.add.reduceat(rows[field], start) / count
 
         last = rows[start + count - 1]
-        self.loop.append({"t": t, "u": mean(RN.R_U), "omega": mean(RN.R_OMEGA), "phi": last[:, RN.R_PHI]})
-        ref = {"phi_ref": last[:, RN.R_PHI_REF], "omega_ref": mean(RN.R_OMEGA_REF), "u_ff": mean(RN.R_UFF)}
+        self.loop.append({"t": t, "u": mean("u"), "omega": mean("omega"), "phi": last["phi"]})
+        ref = {"phi_ref": last["phi_ref"], "omega_ref": mean("omega_ref"), "u_ff": mean("u_ff")}
         self.reference.append({"t": t, **ref})
 
     def window(self, rows: np.ndarray, reason: str) -> None:
-        """A full-rate window of control ticks, marked with why it was taken."""
+        """A full-rate window of control ticks (TICK_DTYPE rows), marked with why it was taken."""
         if len(rows):
-            self.recorder.mark("window", reason=reason, t0=float(rows[0, RN.R_T]), ticks=len(rows))
-            arr = np.empty(len(rows), dtype=self.full.dtype)
-            for i, c in enumerate(RUNNER_COLUMNS):
-                arr[c] = rows[:, i]
-            self.full.append(arr)
+            self.recorder.mark("window", reason=reason, t0=float(rows["t"][0]), ticks=len(rows))
+            self.full.append(rows)
 
     def pulse(self, t_host: float, mcu_ticks: int, channel: int) -> None:
         self.pulses.append({"t_host": t_host, "mcu_ticks": mcu_ticks, "channel": channel})
 
-    def point(self, point: dict[str, Any]) -> None:
-        self.points.append({f: point[f] for f in self.points.dtype.names or ()})
+    def point(self, point: Point) -> None:
+        self.points.append({f: getattr(point, f) for f in self.points.dtype.names or ()})
 
     def imu_batch(
         self, sensor: str, k: np.ndarray, t: np.ndarray, accel: np.ndarray, gyro: np.ndarray

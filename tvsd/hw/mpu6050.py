@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import errno as _errno
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 
-from tvsd.errors import DeviceError, UsageError
+from tvsd.errors import DeviceError
+from tvsd.schema import FieldError, check, option
 
 # Registers (Register Map rev 4.2).
 SELF_TEST_X, SELF_TEST_Y, SELF_TEST_Z, SELF_TEST_A = 0x0D, 0x0E, 0x0F, 0x10
@@ -84,59 +85,74 @@ class SMBusLike(Protocol):
     def close(self) -> None: ...
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ImuSettings:
-    """IMU settings (the `imu:` config section). Checked on creation; errors name the key."""
+    """The two MPU6050s: the `imu:` config section, and the driver's settings.
 
-    bus: int = 1
-    addresses: dict[str, int] = field(default_factory=lambda: {"pl": 0x68, "sa": 0x69})
-    sample_rate_hz: float = 1000.0
-    dlpf_cfg: int = 1  # 188 Hz: passes the 15-25 Hz lines and structural modes to ~150 Hz
-    gyro_fs_dps: int = 250  # finest LSB; vibration rates here are a few deg/s
-    accel_fs_g: int = 4  # real MPU6050 records on motors clip at +-2 g (data/real): headroom
-    sa_axis: str = "x"
-    calibration_file: Path = Path("/var/lib/tvsd/imu-calibration.json")
-    poll_interval_s: float = 0.02  # 20 frames per poll at 1 kHz; the FIFO holds 85 (85 ms)
+    Each key has its rule (`option`); `__post_init__` adds the chip's own (rates the sample-rate
+    divider can make, ranges the chip has, the DLPF against the rate), so the rules hold however
+    the settings are made: from the config file (errors at the key's line), the command line, a test.
+    """
+
+    bus: int = option(1, doc="I2C bus number (/dev/i2c-N)", ge=0)
+    address_pl: int = option(0x68, doc="PL sensor address (AD0 low)", ge=0, le=0x7F)
+    address_sa: int = option(0x69, doc="SA sensor address (AD0 high)", ge=0, le=0x7F)
+    sample_rate_hz: float = option(1000.0, doc="FIFO rate (MODEL-NOTES §4: ≥ 1 kHz)", unit="Hz", gt=0)
+    # 188 Hz: passes the 15-25 Hz lines and structural modes to ~150 Hz
+    dlpf_cfg: int = option(1, doc="digital low-pass setting 1..6 (1: 188 Hz)", ge=0, le=7)
+    # finest LSB; vibration rates here are a few deg/s
+    gyro_fs_dps: int = option(250, doc="gyro full scale", unit="°/s", gt=0)
+    # real MPU6050 records on motors clip at +-2 g (data/real): headroom
+    accel_fs_g: int = option(4, doc="accelerometer full scale", unit="g", gt=0)
+    sa_axis: str = option("x", doc="sensor axis along the SA shaft", choices=tuple(SA_AXES))
+    calibration_file: Path = option(Path("/var/lib/tvsd/imu-calibration.json"), doc="bias calibration file")
+    # 20 frames per poll at 1 kHz; the FIFO holds 85 (85 ms), so 50 ms leaves margin
+    poll_interval_s: float = option(0.02, doc="FIFO poll period", unit="s", ge=0.001, le=0.05)
+    calibrate_max_s: float = option(
+        60.0, doc="a bias calibration at rest takes at most this long", unit="s", gt=0, le=3600
+    )
+    lost_margin_s: float = option(
+        0.1, doc="a sensor is lost after 5 poll periods and this long without a sample", unit="s", gt=0
+    )
 
     def __post_init__(self) -> None:
-        if not isinstance(self.bus, int) or self.bus < 0:
-            raise UsageError(f"imu.bus must be an integer >= 0 (/dev/i2c-N), got {self.bus!r}")
-        if set(self.addresses) != {"pl", "sa"}:
-            raise UsageError(f"imu.addresses must name 'pl' and 'sa', got {sorted(self.addresses)}")
-        for name, addr in self.addresses.items():
-            if addr not in (0x68, 0x69):
-                raise UsageError(
-                    f"imu.addresses.{name} = {addr!r}: an MPU6050 answers at 0x68 (AD0 low) or "
-                    "0x69 (AD0 high)"
-                )
-        if self.addresses["pl"] == self.addresses["sa"]:
-            raise UsageError("imu.addresses: pl and sa share one address; tie AD0 high on one")
+        check(self)
+        for key in ("address_pl", "address_sa"):
+            if getattr(self, key) not in (0x68, 0x69):
+                got = getattr(self, key)
+                raise FieldError(key, f"must be 0x68 (AD0 low) or 0x69 (AD0 high), got {got:#x}")
+        if self.address_pl == self.address_sa:
+            raise FieldError("address_sa", "pl and sa share one address; tie AD0 high on one")
         if self.dlpf_cfg not in DLPF_GYRO_BW_HZ:
-            raise UsageError(
-                f"imu.dlpf_cfg = {self.dlpf_cfg!r}: use 1..6; 0 and 7 switch the DLPF off "
-                "(8 kHz gyro, 1 kHz accelerometer, no anti-alias filter)"
+            raise FieldError(
+                "dlpf_cfg",
+                f"must be 1..6, got {self.dlpf_cfg!r}: 0 and 7 switch the DLPF off "
+                "(8 kHz gyro, 1 kHz accelerometer, no anti-alias filter)",
             )
         rate = self.sample_rate_hz
-        divider = GYRO_OUTPUT_RATE_HZ / rate - 1.0 if rate > 0 else -1.0
+        divider = GYRO_OUTPUT_RATE_HZ / rate - 1.0
         if abs(divider - round(divider)) > 1e-3 or not 0 <= round(divider) < 256:
-            raise UsageError(
-                f"imu.sample_rate_hz = {self.sample_rate_hz!r}: must be 1000/(1+d) Hz for an "
-                "integer d in 0..255 (1000, 500, 333.33..., 250 ...); 1000 is the scanner's rate"
+            raise FieldError(
+                "sample_rate_hz",
+                "must be 1000/(1+d) Hz for an integer d in 0..255 "
+                f"(1000, 500, 333.33..., 250 ...; 1000 is the scanner's rate), got {rate!r}",
             )
         bandwidth = DLPF_GYRO_BW_HZ[self.dlpf_cfg]
-        if self.sample_rate_hz < 2.5 * bandwidth:  # Nyquist with margin for the DLPF's roll-off
-            raise UsageError(
-                f"imu.sample_rate_hz = {self.sample_rate_hz:g} aliases the DLPF's {bandwidth:g} Hz "
-                f"band: raise the rate to >= {2.5 * bandwidth:g} Hz or raise imu.dlpf_cfg"
+        if rate < 2.5 * bandwidth:  # Nyquist with margin for the DLPF's roll-off
+            raise FieldError(
+                "sample_rate_hz",
+                f"{rate:g} Hz aliases the DLPF's {bandwidth:g} Hz band: raise the rate to >= "
+                f"{2.5 * bandwidth:g} Hz or raise imu.dlpf_cfg",
             )
         if self.gyro_fs_dps not in GYRO_FS_DPS:
-            raise UsageError(f"imu.gyro_fs_dps = {self.gyro_fs_dps!r}: one of {GYRO_FS_DPS}")
+            raise FieldError("gyro_fs_dps", f"must be one of {GYRO_FS_DPS}, got {self.gyro_fs_dps!r}")
         if self.accel_fs_g not in ACCEL_FS_G:
-            raise UsageError(f"imu.accel_fs_g = {self.accel_fs_g!r}: one of {ACCEL_FS_G}")
-        if self.sa_axis not in SA_AXES:
-            raise UsageError(f"imu.sa_axis = {self.sa_axis!r}: one of x, y, z")
-        if not 0.001 <= self.poll_interval_s <= 0.05:  # 0.05 s: 50 frames, well under 85
-            raise UsageError(f"imu.poll_interval_s = {self.poll_interval_s!r}: 0.001..0.05 s")
+            raise FieldError("accel_fs_g", f"must be one of {ACCEL_FS_G}, got {self.accel_fs_g!r}")
+
+    @property
+    def addresses(self) -> dict[str, int]:
+        """The I2C address of each sensor, by name ("pl", "sa")."""
+        return {"pl": self.address_pl, "sa": self.address_sa}
 
     @property
     def smplrt_div(self) -> int:

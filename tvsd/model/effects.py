@@ -39,6 +39,7 @@ E_DRIFT_PARAM, E_DRIFT_REL = 11, 12
 E_COG_PHASE, E_RES_PHASE = 13, 14
 N_EFFECT_SLOTS = 15
 
+
 def neutral() -> np.ndarray:
     eff = np.zeros(N_EFFECT_SLOTS)
     eff[E_SAT_UMAX] = np.inf

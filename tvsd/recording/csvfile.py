@@ -1,4 +1,4 @@
-"""The recording CSV of DESIGN.md: written by `tvsctl sim record` / `tvsctl export`, read by analyze.
+"""Recording CSV of docs/architecture.md: written by `tvsctl sim record` / `tvsctl export`, read by analyze
 
     # tvs-recording: 1
     # sample_rate_hz: 1000
@@ -86,7 +86,7 @@ def read(path: Path) -> Recording:
         raise fail(
             1,
             f"expected '# tvs-recording: {FORMAT_VERSION}' as the first line, got {seen!r}"
-            " (is this a tvs recording? see DESIGN.md 'Recording CSV')",
+            " (is this a tvs recording? see docs/architecture.md, 'Recording CSV')",
         )
     meta: dict[str, str] = {}
     row = 1

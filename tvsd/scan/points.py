@@ -1,11 +1,12 @@
 """Points of a scan with their uncertainty and flags; CSV and PLY writers.
 
 `FIELDS` is the one list of per-point fields: the CSV columns, the PLY vertex properties, and the
-keys of each record on the daemon's point stream (`records()`), in that order.
+fields of each `Point` on the daemon's point stream (`PointCloud.points()`), in that order.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -49,17 +50,48 @@ class PointCloud:
     def __len__(self) -> int:
         return len(self.t)
 
-    def records(self) -> Iterator[dict[str, Any]]:
-        """One dict per point with FIELDS as keys: the daemon's point stream carries these."""
+    def points(self) -> Iterator[Point]:
+        """One Point per point: the daemon's point stream carries these."""
         cols = [getattr(self, f) for f in FIELDS]
         for row in zip(*cols, strict=True):
-            yield {f: (int(v) if f == "flags" else float(v)) for f, v in zip(FIELDS, row, strict=True)}
+            values: dict[str, Any] = {f: float(v) for f, v in zip(FIELDS, row, strict=True)}
+            values["flags"] = int(row[-1])
+            yield Point(**values)
 
     def select(self, mask: NDArray[np.bool_]) -> PointCloud:
         return PointCloud(**{f.name: getattr(self, f.name)[mask] for f in fields(self)})
 
 
 FIELDS: tuple[str, ...] = tuple(f.name for f in fields(PointCloud))
+
+
+@dataclass(frozen=True, slots=True)
+class Point:
+    """One point of PointCloud (its FIELDS, in order), and when it happened on the host's clock.
+
+    `to_json()` is the record of the daemon's point stream (`tvsctl points --json`): a contract,
+    fields only ever added."""
+
+    t: float  # s, time of the optical pulse (MCU clock)
+    phi: float
+    gamma: float
+    beta: float
+    x: float
+    y: float
+    z: float
+    sigma_x: float
+    sigma_y: float
+    sigma_z: float
+    sigma_beta: float
+    vibration: float
+    flags: int
+    t_mono: float = math.nan  # the optical pulse on the host's CLOCK_MONOTONIC (the daemon's clock sync)
+
+    def to_json(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+assert tuple(f.name for f in fields(Point))[: len(FIELDS)] == FIELDS  # one field list, in order
 _UNITS = {
     "t": "s",
     "phi": "rad",

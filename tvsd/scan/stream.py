@@ -5,19 +5,18 @@ once its data are there: the zero pulses its estimator needs (centred: the next 
 revolution later; causal: none after it) and, with compensation, IMU samples up to the last of
 those pulses (the FIFO delivers them within a few ms), judged for each pulse. Each computation
 runs the batch pipeline on a short buffer — the last `KEEP_ZERO` zero pulses and the samples the
-σ window needs — and returns the points not sent before, as records with the fields of
-tvsd.scan.points.FIELDS.
+σ window needs — and returns the points not sent before (tvsd.scan.points.Point).
 """
 
 from __future__ import annotations
 
 from collections import deque
-from typing import Any
 
 import numpy as np
 
 from tvsd.scan.compensation import KnownAccel
 from tvsd.scan.pipeline import process
+from tvsd.scan.points import Point
 from tvsd.scan.pulses import OPTICAL, ZERO, clean
 from tvsd.scan.settings import ScanSettings
 
@@ -52,7 +51,7 @@ class PointStream:
     def _imu_end(self) -> float:
         return self._imu_t0 + len(self._imu) / self.settings.imu_rate_hz if self._imu else -np.inf
 
-    def add_samples(self, t0: float, imu: np.ndarray, drive: np.ndarray) -> list[dict[str, Any]]:
+    def add_samples(self, t0: float, imu: np.ndarray, drive: np.ndarray) -> list[Point]:
         """IMU and drive samples on the IMU grid; t0 = start of the first, in MCU time."""
         if not self._imu:
             self._imu_t0 = t0
@@ -65,7 +64,7 @@ class PointStream:
         self._imu_t0 += excess / self.settings.imu_rate_hz
         return self._emit()
 
-    def add_pulse(self, kind: int, ticks: int) -> list[dict[str, Any]]:
+    def add_pulse(self, kind: int, ticks: int) -> list[Point]:
         """One pulse in arrival order; returns the points that are now complete."""
         t = ticks * self.tick_s
         self._pulses.append((kind, ticks))
@@ -104,7 +103,7 @@ class PointStream:
     def _ready(self, until: float) -> bool:
         return bool(self._pending) and self._pending[0] <= until and self._zeros >= 3
 
-    def _emit(self) -> list[dict[str, Any]]:
+    def _emit(self) -> list[Point]:
         until = self._complete_until()
         if not self._ready(until):
             return []
@@ -130,4 +129,4 @@ class PointStream:
             self._pending.popleft()
         if len(new):
             self._last_sent = float(new.t[-1])
-        return list(new.records())
+        return list(new.points())

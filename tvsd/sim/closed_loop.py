@@ -14,16 +14,19 @@ import math
 import numpy as np
 from numba import njit
 
+from tvsd.control import layout as W
 from tvsd.control.law import robust_law
 from tvsd.control.scanning import ramp_toward, track
 from tvsd.model import effects as E
 from tvsd.model import params as P
 from tvsd.model import plant as K
 
-# Controller array layout; C_MODE: 0 open loop (u from the input array), 1 position, 2 scanning.
-C_MODE, C_GP, C_GD, C_GR, C_G0, C_UMAX, C_REF, C_ACCEL, C_MAXLAG, C_FF, C_DIV = range(11)
-N_CTRL = 11  # C_DIV: plant steps per controller update (the law and u_in update every C_DIV steps)
-MODE_OPEN, MODE_POSITION, MODE_SCAN = 0, 1, 2
+# The controller array: the law's words (tvsd.control.layout; mode MODE_OFF here is open loop, u
+# from the input array), then C_DIV: plant steps per controller update (the law and u_in update
+# every C_DIV steps).
+C_DIV = W.N_LAW
+N_CTRL = W.N_LAW + 1
+MODE_OPEN, MODE_POSITION, MODE_SCAN = W.MODE_OFF, W.MODE_POSITION, W.MODE_SCAN
 
 # Output columns (one row every `decim` steps).
 O_T, O_U, O_UAPP, O_PHI, O_OMEGA, O_I, O_Z, O_OMEGA_MEAN, O_DIST_MEAN, O_PHI_REF, O_U_MEAN = range(11)
@@ -64,12 +67,12 @@ def run(
     fixed = K.fixed_constants(plant, eff)
     base = K.drifting_base(plant)
 
-    mode = int(ctrl[C_MODE])
-    Gp, Gd, Gr, G0, umax = ctrl[C_GP], ctrl[C_GD], ctrl[C_GR], ctrl[C_G0], ctrl[C_UMAX]
-    omega_target = 2.0 * math.pi * ctrl[C_REF]
-    ramp = 2.0 * math.pi * ctrl[C_ACCEL] * dt * max(int(ctrl[C_DIV]), 1)
-    max_lag = ctrl[C_MAXLAG]
-    use_ff = ctrl[C_FF] != 0.0
+    mode = int(ctrl[W.MODE])
+    Gp, Gd, Gr, G0, umax = ctrl[W.GP], ctrl[W.GD], ctrl[W.GR], ctrl[W.G0], ctrl[W.UMAX]
+    omega_target = 2.0 * math.pi * ctrl[W.REF]
+    ramp = 2.0 * math.pi * ctrl[W.ACCEL] * dt * max(int(ctrl[C_DIV]), 1)
+    max_lag = ctrl[W.MAXLAG]
+    use_ff = ctrl[W.FF] != 0.0
     div = max(int(ctrl[C_DIV]), 1)
     dt_ctrl = dt * div
     ctrl_countdown = 1
@@ -79,7 +82,7 @@ def run(
 
     phi, omega, cur, z = state[K.S_PHI], state[K.S_OMEGA], state[K.S_I], state[K.S_Z]
     accel = state[K.S_NOISE]
-    phi_ref = ctrl[C_REF] if mode == MODE_POSITION else phi
+    phi_ref = ctrl[W.REF] if mode == MODE_POSITION else phi
     omega_ref = omega if mode == MODE_SCAN else 0.0
     omega_ref_prev = omega_ref
     slips = 0

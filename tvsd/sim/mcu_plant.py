@@ -381,14 +381,14 @@ def bench_clock_sync(seconds: float = 60.0, speed: float = 10.0, duty: float = 0
 
 async def _bench(seconds: float, speed: float, duty: float) -> dict[str, Any]:
     from tvsd.config import load_config
-    from tvsd.hw.mcu.link import FaultEvent, LinkSettings, McuLink
+    from tvsd.hw.mcu.link import FaultEvent, McuLink, McuSettings
 
     cfg = load_config()
     errs: list[tuple[float, float]] = []  # (sim s, error s)
     faults: list[FaultEvent] = []
     with McuPlant(cfg, speed=speed, record=False) as plant:
         hz = plant.mcu.clock_hz
-        async with McuLink(LinkSettings(port=plant.mcu.port), on_fault=faults.append) as link:
+        async with McuLink(McuSettings(port=plant.mcu.port), on_fault=faults.append) as link:
             # the watchdog in MCU time: 0.5 s of wall time without a heartbeat
             link.send_config(watchdog_ms=min(65535, math.ceil(500 * speed)), state_div=10, max_on_ms=0)
             link.send_pwm(duty)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tvsd.control.layout import pack_law
 from tvsd.control.setup import Setup
 from tvsd.model import plant as K
 from tvsd.sim import closed_loop as C
@@ -41,13 +42,7 @@ class Trace:
 def controller(setup: Setup, mode: int, ref: float) -> np.ndarray:
     """The closed-loop kernel's controller array for `setup` in `mode` (reference: rad or rev/s)."""
     ctrl = np.zeros(C.N_CTRL)
-    ctrl[C.C_MODE] = mode
-    ctrl[C.C_GP], ctrl[C.C_GD], ctrl[C.C_GR], ctrl[C.C_G0] = setup.gains.as_tuple()
-    ctrl[C.C_UMAX] = setup.u_max
-    ctrl[C.C_REF] = ref
-    ctrl[C.C_ACCEL] = setup.scan_accel_rps2
-    ctrl[C.C_MAXLAG] = setup.max_lag_rad
-    ctrl[C.C_FF] = 1.0 if setup.scan_feedforward else 0.0
+    pack_law(ctrl, setup, mode, ref)
     ctrl[C.C_DIV] = setup.substeps
     return ctrl
 

@@ -95,7 +95,7 @@ def bench_latency(seconds: float = 3.0, rps: float = 20.0) -> dict[str, float]:
                 points = stream.add_pulse(int(rec.kind[i]), int(rec.ticks[i]))
             elapsed = time.perf_counter() - t0
             for p in points:
-                waits.append(t_now - p["t"])
+                waits.append(t_now - p.t)
                 compute.append(elapsed)
         out[f"scan_latency_{estimator}_wait_ms"] = 1e3 * float(np.mean(waits))
         out[f"scan_latency_{estimator}_compute_p50_ms"] = 1e3 * float(np.percentile(compute, 50))

@@ -55,7 +55,6 @@ __all__ = ["Ack", "CanBridge", "CanSettings", "CanStats", "Command", "CommandCod
 log = logging.getLogger(__name__)
 
 CommandHandler = Callable[[Command], Awaitable[Ack]] | Callable[[Command], Ack]
-HANDLER_TIMEOUT_S = 2.0  # a robot waits for its ack; past this it gets TIMEOUT instead of silence
 
 
 @dataclass(frozen=True)
@@ -261,7 +260,7 @@ class CanBridge:
         try:
             result = self._on_command(cmd)
             if inspect.isawaitable(result):
-                result = await asyncio.wait_for(result, HANDLER_TIMEOUT_S)
+                result = await asyncio.wait_for(result, self.settings.handler_timeout_s)
         except TimeoutError:
             return Ack.refused(Reason.TIMEOUT)
         except Exception:  # the robot gets an answer whatever the handler does; the bug is logged

@@ -27,6 +27,9 @@ class CanSettings:
         0x580, doc="first of the four 11-bit ids (command, ack, status, point)", ge=0, le=MAX_BASE_ID
     )
     status_hz: float = option(10.0, doc="status frame rate", unit="Hz", gt=0, le=100)
+    handler_timeout_s: float = option(
+        2.0, doc="a robot's command unanswered this long gets a TIMEOUT ack, not silence", unit="s", gt=0
+    )
     point_queue: int = option(
         256, doc="points waiting for the bus before the oldest is dropped", ge=1, le=65536
     )

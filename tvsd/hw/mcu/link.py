@@ -30,14 +30,13 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Any
 
 import serial
 
-from tvsd.errors import ConfigError, DeviceError, ProtocolError, UsageError
-from tvsd.hw.mcu.clock import ClockSettings, ClockSync
+from tvsd.errors import DeviceError, ProtocolError, UsageError
+from tvsd.hw.mcu.clock import ClockSync
 from tvsd.hw.mcu.clock import warm_up as warm_up_clock_fit
 from tvsd.hw.mcu.framing import FrameDecoder, encode_frame
 from tvsd.hw.mcu.messages import (
@@ -53,7 +52,8 @@ from tvsd.hw.mcu.messages import (
     check_against,
 )
 from tvsd.hw.mcu.placement import ACK_SLACK_TICKS, GUESS_SLACK_TICKS, HOLD_MAX, StateSample, TickPlacer
-from tvsd.hw.mcu.spec import FRAME_OVERHEAD, ProtocolSpec, load_spec
+from tvsd.hw.mcu.settings import McuSettings
+from tvsd.hw.mcu.spec import ProtocolSpec, load_spec
 
 __all__ = [
     "ACK_SLACK_TICKS",
@@ -61,9 +61,9 @@ __all__ = [
     "GUESS_SLACK_TICKS",
     "HOLD_MAX",
     "FaultEvent",
-    "LinkSettings",
     "LinkStats",
     "McuLink",
+    "McuSettings",
     "PulseEvent",
     "Refusal",
     "StateSample",
@@ -78,29 +78,6 @@ FLASH_HINT = (
 
 
 REFUSAL_LOG_INTERVAL_S = 1.0  # the same refusal is logged at most this often (with a count)
-
-
-@dataclass(frozen=True)
-class LinkSettings:
-    port: str
-    baud: int = 2_000_000
-    heartbeat_period_s: float = 0.02
-    link_timeout_s: float = 0.05  # no frame for this long: the link is lost
-    identify_timeout_s: float = 0.5
-    tx_buffer_bytes: int = 4096  # pending output beyond what the driver took; ~20 ms at 2 Mbaud
-    rtt_history: int = 256
-    clock: ClockSettings = field(default_factory=ClockSettings)
-    spec_path: Path | None = None
-
-    def __post_init__(self) -> None:
-        for name in ("heartbeat_period_s", "link_timeout_s", "identify_timeout_s"):
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"mcu.{name} must be > 0, got {getattr(self, name)}")
-        if self.baud <= 0:
-            raise ConfigError(f"mcu.baud must be > 0, got {self.baud}")
-        # a frame that cannot fit could never be sent
-        if self.tx_buffer_bytes < FRAME_OVERHEAD + 32:
-            raise ConfigError(f"mcu.tx_buffer_bytes must be >= 38, got {self.tx_buffer_bytes}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -185,7 +162,7 @@ class McuLink:
 
     def __init__(
         self,
-        settings: LinkSettings,
+        settings: McuSettings,
         spec: ProtocolSpec | None = None,
         *,
         on_pulse: Callable[[PulseEvent], None] | None = None,
@@ -512,15 +489,15 @@ class McuLink:
 
     def _arm_watchdog(self) -> None:
         # One timer per timeout period, re-armed from the last frame's time: a loss is seen
-        # link_timeout_s after the last frame, without a timer per frame at 10 kHz.
+        # link_lost_ms after the last frame, without a timer per frame at 10 kHz.
         loop = self._require_loop()
-        self._watchdog = loop.call_at(self._last_rx + self.settings.link_timeout_s, self._check_link)
+        self._watchdog = loop.call_at(self._last_rx + self.settings.link_lost_s, self._check_link)
 
     def _check_link(self) -> None:
         self._watchdog = None
         if self._fd is None or not self._stats.link_up:
             return
-        if self._require_loop().time() >= self._last_rx + self.settings.link_timeout_s:
+        if self._require_loop().time() >= self._last_rx + self.settings.link_lost_s:
             # A host that was not scheduled for a while has not lost the link: read what is
             # waiting first (the timer can run before the reader in the loop's iteration). Only
             # if readable: with VMIN = VTIME = 0 an empty read returns b"", which means EOF.
@@ -529,7 +506,7 @@ class McuLink:
                 self._on_readable()
             if self._fd is None:
                 return
-        if self._require_loop().time() >= self._last_rx + self.settings.link_timeout_s:
+        if self._require_loop().time() >= self._last_rx + self.settings.link_lost_s:
             # the 16-bit stamps cannot be chained across an outage: break the chain
             self._placer.note_lost(1)
             self._set_link(False)  # the next frame re-arms the watchdog
