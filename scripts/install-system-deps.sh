@@ -1,9 +1,14 @@
 #!/usr/bin/env bash
-# Install the distribution packages the firmware build and tests need, when they are missing.
+# Install the distribution packages the firmware builds and tests need, when they are missing:
+# the AVR toolchain and simavr (ATmega328P board), the Arm toolchain, newlib and QEMU (the
+# STM32F405 board, run in qemu-system-arm's netduinoplus2 machine), and Chromium with its driver
+# (the web view's browser test).
 # Runs apt-get only as root; otherwise prints the command to run and fails (exit 2).
 set -euo pipefail
 
-packages=(gcc-avr avr-libc simavr libsimavr-dev libsimavrparts1)
+packages=(gcc-avr avr-libc simavr libsimavr-dev libsimavrparts1
+          gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm
+          chromium chromium-driver)
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
