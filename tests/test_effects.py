@@ -1,4 +1,4 @@
-"""The effects library: each cause does to the plant what DESIGN.md's vocabulary says."""
+"""The effects library: each cause does to the plant what docs/architecture.md's vocabulary says."""
 
 from __future__ import annotations
 

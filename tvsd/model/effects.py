@@ -1,4 +1,4 @@
-"""The effects library: one entry per cause of DESIGN.md's vocabulary.
+"""The effects library: one entry per cause of docs/architecture.md's vocabulary.
 
 The SIL plant switches them on; the model doctor fits them as candidate extensions. Their names,
 parameters and syntax are the vocabulary in tvsd.causes.
