@@ -135,11 +135,13 @@ fuzz_result_t fuzz_frames(uint32_t seed, uint64_t corrupted)
             }
             }
         }
+        uint16_t c0 = p.crc_errors, r0 = p.resyncs, d0 = p.duplicates;
         for (unsigned i = 0; i < m; i++)
             frame_parser_feed(&p, out[i]);
+        /* the parser's counters are 16-bit (as in the stats frame): sum their steps */
+        res.crc_errors += (uint16_t)(p.crc_errors - c0);
+        res.resyncs += (uint16_t)(p.resyncs - r0);
+        res.dup_dropped += (uint16_t)(p.duplicates - d0);
     }
-    res.crc_errors = p.crc_errors;
-    res.resyncs = p.resyncs;
-    res.dup_dropped = p.duplicates;
     return res;
 }

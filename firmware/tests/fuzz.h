@@ -11,7 +11,7 @@ typedef struct {
     uint64_t false_accepts;  /* frames handed over that were never sent as such */
     uint64_t duplicates_run; /* a repeated frame handed over a second time */
     uint64_t by_op[6];       /* corrupted frames per kind, as in fuzz_op_names */
-    uint32_t crc_errors, resyncs, dup_dropped; /* parser counters (mod 2^32) */
+    uint32_t crc_errors, resyncs, dup_dropped; /* parser counters, summed over the run */
 } fuzz_result_t;
 
 extern const char *const fuzz_op_names[6];
