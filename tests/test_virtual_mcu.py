@@ -272,7 +272,7 @@ def test_steppers_move_and_home(manual: tuple[VirtualMcu, serial.Serial, Reader]
 
 def test_long_advance_loses_no_frame(manual: tuple[VirtualMcu, serial.Serial, Reader]) -> None:
     # One 0.2 s step of the clock (a plant stepping coarsely, or the pump woken late on a loaded
-    # host) makes 2000 state frames at state_div 1, 20 kB; the host build's TX ring holds 8 kB.
+    # host) makes 2000 state frames at state_div 1, 30 kB; the host build's TX ring holds 8 kB.
     # The UART drains it while time runs (1 ms slices), as the chip's UART would: no SEQ gap,
     # no tx_overflow fault.
     vm, port, rd = manual

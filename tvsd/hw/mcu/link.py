@@ -208,7 +208,7 @@ class McuLink:
         self._tx_seq = 0
         self._tx_error: OSError | None = None
         # what went out under each SEQ: an ack names the frame by its SEQ only
-        self._sent: list[tuple[str, tuple[int, ...]]] = [("", ())] * 256
+        self._sent: list[tuple[str, tuple[int, ...]]] = [("", ())] * 0x1_0000
         # receive side: event-loop thread only
         self._last_rx = -math.inf
         self._watchdog: asyncio.TimerHandle | None = None
@@ -416,7 +416,7 @@ class McuLink:
                 self._flush_locked()
                 return False
             # SEQ only advances for frames that go out: a gap at the MCU is a loss on the wire
-            self._sent[self._tx_seq & 0xFF] = (name, values)  # acks come back within 256 frames
+            self._sent[self._tx_seq] = (name, values)
             self._tx_seq = (self._tx_seq + 1) & 0xFFFF
             self._tx_pending += frame
             self._stats.frames_tx += 1
@@ -582,7 +582,7 @@ class McuLink:
         if msg.status == 0:
             return
         self._stats.nacks += 1
-        name, values = self._sent[msg.seq & 0xFF]
+        name, values = self._sent[msg.seq]
         ref = Refusal(name or "?", values, msg.status, ack_meaning(msg.status), now)
         self.refusals.append(ref)
         # pwm_set goes with every state frame (1 kHz): while the outputs are disarmed each one is
