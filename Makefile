@@ -7,7 +7,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test lint pytest firmware-test system-deps bench clean
+.PHONY: run test lint pytest firmware-test host-lib system-deps bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 # The main job: tvsd on the simulated plant, in the foreground: spins the scanning aperture to
 # 25 rev/s, scans the simulated scene and prints a status line per second until Ctrl-C.
 # Drive it from another terminal: TVSD_SOCKET=.run/tvsd.sock .venv/bin/tvsctl status
-run: $(STAMP)
+run: $(STAMP) host-lib
 	$(BIN)/tvsd --sil --realtime --demo --status-lines --socket .run/tvsd.sock --data-dir .run/data
 
 system-deps:
@@ -33,8 +33,13 @@ lint: $(STAMP)
 	$(BIN)/mypy
 	$(BIN)/lint-imports
 
-pytest: $(STAMP)
+pytest: $(STAMP) host-lib
 	$(BIN)/python -m pytest -q
+
+# The firmware core built for the host (the virtual MCU behind --sil): built here, before tvsd
+# runs, never by tvsd itself. An installed wheel carries its own (setup.py).
+host-lib: $(STAMP)
+	$(MAKE) -C firmware host-lib
 
 firmware-test: system-deps $(STAMP)
 	@if [ -f firmware/Makefile ]; then $(MAKE) -C firmware all test; fi

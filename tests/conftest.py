@@ -90,3 +90,21 @@ async def until(
         if time.monotonic() - t0 >= timeout:
             raise _timed_out(what, read, timeout, last)
         await asyncio.sleep(interval)
+
+
+# --- the virtual MCU's library --------------------------------------------------------------------
+import shutil  # noqa: E402
+import subprocess  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
+
+_FIRMWARE = Path(__file__).resolve().parents[1] / "firmware"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _virtual_mcu_library() -> None:
+    """Bring the checkout's host build of the firmware core up to date once per session (make is
+    incremental). tvsd itself never compiles it: a checkout uses this build, a wheel its own."""
+    if shutil.which("make") and (_FIRMWARE / "Makefile").is_file():
+        subprocess.run(["make", "-s", "-C", str(_FIRMWARE), "host-lib"], check=False, capture_output=True)

@@ -52,7 +52,7 @@ class FakeMcu:
     def send(self, name: str, *values: int) -> bytes:
         m = ID[name]
         frame = encode_frame(self.seq, m.id, m.codec.pack(*values))
-        self.seq = (self.seq + 1) & 0xFF
+        self.seq = (self.seq + 1) & 0xFFFF
         os.write(self.master, frame)
         return frame
 
@@ -72,7 +72,7 @@ class FakeMcu:
                 (host_us,) = ID["heartbeat"].codec.unpack(f.payload)
                 self.send("heartbeat_ack", host_us, self.ticks() & 0xFFFF_FFFF)
             elif name == "stats_req":
-                self.send("stats", self.decoder.stats.frames, 0, 0, 0)
+                self.send("stats", self.decoder.stats.frames, 0, 0, 0, 0)
 
     def pwm(self) -> list[int]:
         return [
@@ -133,13 +133,21 @@ def test_identify_ok_and_ping() -> None:
 
 def test_identify_mismatch_is_refused_with_the_fix() -> None:
     async def main() -> None:
-        async with pty_link({"version": 2, "table_hash": 0xDEADBEEF}) as (link, _):
+        # a v1 image: refused on the version, in one line with the fix
+        async with pty_link({"version": 1, "table_hash": 0xDEADBEEF}) as (link, _):
             with pytest.raises(ProtocolError) as info:
                 await link.identify()
             msg = str(info.value)
-            assert "MCU reports protocol v2, table hash 0xDEADBEEF" in msg
-            assert f"needs v{SPEC.version} hash 0x{SPEC.table_hash:08X}" in msg
-            assert "flash the firmware of this tvsd version (make -C firmware" in msg
+            assert f"speaks protocol v1, this tvsd speaks v{SPEC.version}" in msg
+            assert "flash the firmware image of this tvsd (make -C firmware" in msg
+            assert "\n" not in msg
+        # the right version but another command table: refused on the hash
+        async with pty_link({"table_hash": 0xDEADBEEF}) as (link, _):
+            with pytest.raises(ProtocolError) as info:
+                await link.identify()
+            msg = str(info.value)
+            assert f"command table 0xDEADBEEF (protocol v{SPEC.version})" in msg
+            assert f"expects 0x{SPEC.table_hash:08X}" in msg and "flash the firmware image" in msg
 
     run(main)
 
@@ -209,7 +217,7 @@ def test_pulse_loss_and_tick_unwrap() -> None:
     run(main)
 
 
-def test_state_frames_unwrap_16_bit_ticks_and_encoder() -> None:
+def test_state_frames_unwrap_32_bit_ticks_and_16_bit_encoder() -> None:
     async def main() -> None:
         got: list[StateSample] = []
         async with pty_link(on_state=got.append) as (link, fake):
@@ -217,10 +225,10 @@ def test_state_frames_unwrap_16_bit_ticks_and_encoder() -> None:
             await link.ping()
             t = fake.ticks()
             enc = 0
-            # 300 frames 1600 ticks apart (10 kHz at 16 MHz) = 7 wraps; encoder at -300 counts
-            # per frame runs through -32768 several times
+            # 300 frames 1600 ticks apart (10 kHz at 16 MHz) from 2**32 - 65536 + x: across the
+            # 32-bit wrap; encoder at -300 counts per frame runs through -32768 several times
             for _ in range(300):
-                fake.send("state", t & 0xFFFF, ((enc + 0x8000) & 0xFFFF) - 0x8000)
+                fake.send("state", t & 0xFFFF_FFFF, ((enc + 0x8000) & 0xFFFF) - 0x8000)
                 t += 1600
                 enc -= 300
             await wait_for(lambda: len(got) == 300)
@@ -248,7 +256,7 @@ def test_link_loss_reported_in_time_and_recovers() -> None:
         ):
             last_sent = 0.0
             for _ in range(50):  # 1 kHz state stream for 50 ms
-                fake.send("state", fake.ticks() & 0xFFFF, 0)
+                fake.send("state", fake.ticks() & 0xFFFF_FFFF, 0)
                 last_sent = loop.time()
                 await asyncio.sleep(0.001)
             assert events[0][0] is True and link.link_up
@@ -269,7 +277,7 @@ def test_link_loss_reported_in_time_and_recovers() -> None:
             # Late by no more than the loop was late, plus 2 ms: epoll rounds a timeout up to
             # 1 ms, and the read of the last frame follows its write by well under 1 ms.
             assert timeout <= latency <= timeout + lag + 0.002
-            fake.send("state", fake.ticks() & 0xFFFF, 0)
+            fake.send("state", fake.ticks() & 0xFFFF_FFFF, 0)
             await wait_for(lambda: len(events) == 3)
             assert events[2][0] is True and link.link_up
 
@@ -283,8 +291,8 @@ def test_corruption_is_counted_and_link_stays_up() -> None:
             n = 0
             expected_crc = expected_bad = expected_lost = 0
             for k in range(200):
-                wire = bytearray(encode_frame(fake.seq, ID["state"].id, b"\x00\x01\x02\x03"))
-                fake.seq = (fake.seq + 1) & 0xFF
+                wire = bytearray(encode_frame(fake.seq, ID["state"].id, b"\x00\x01\x02\x03\x04\x05"))
+                fake.seq = (fake.seq + 1) & 0xFFFF
                 if k % 20 == 5:  # payload byte flipped: caught by the CRC
                     wire[6] ^= 0x40
                     expected_crc += 1
@@ -420,29 +428,22 @@ def test_a_burst_of_refusals_is_one_log_line_with_its_count(caplog: pytest.LogCa
         run(main)
 
 
-def test_state_ticks_reanchored_by_the_next_heartbeat() -> None:
+def test_state_ticks_survive_a_loss() -> None:
     async def main() -> None:
         got: list[StateSample] = []
         async with pty_link(on_state=got.append) as (link, fake):
             await link.identify()
             t = fake.frozen = 1_000_000
             await link.ping()
-            fake.send("state", t & 0xFFFF, 0)
-            # 5 frames lost, and meanwhile 3 wraps of ticks16 that no host clock saw pass
-            # (the fake's clock is frozen): the host's first guess must be wrong by 3 × 65536
-            fake.seq = (fake.seq + 5) & 0xFF
+            fake.send("state", t & 0xFFFF_FFFF, 0)
+            # 5 frames lost, and meanwhile 3 wraps of v1's 16-bit stamp that no host clock saw
+            # pass (the fake's clock is frozen): v2's 32-bit stamp places the next frame exactly
+            fake.seq = (fake.seq + 5) & 0xFFFF
             jump = 3 * 65536 + 1600
-            fake.send("state", (t + jump) & 0xFFFF, 0)
+            fake.send("state", (t + jump) & 0xFFFF_FFFF, 0)
             await wait_for(lambda: len(got) == 2)
-            # the host-clock guess gets ticks16 right but not the wraps it never saw: flagged
-            assert (got[1].mcu_ticks - got[0].mcu_ticks - jump) % 65536 == 0
-            assert got[0].exact and not got[1].exact
-            # the next heartbeat_ack carries the full 32-bit count and re-anchors the stream
-            fake.frozen = t + jump + 800
-            await link.ping()
-            fake.send("state", (t + jump + 1600) & 0xFFFF, 0)
-            await wait_for(lambda: len(got) == 3)
-            assert got[2].mcu_ticks - got[0].mcu_ticks == jump + 1600 and got[2].exact
+            assert got[1].mcu_ticks - got[0].mcu_ticks == jump
+            assert got[0].exact and got[1].exact
             assert link.stats().lost_frames == 5
 
     run(main)
@@ -484,16 +485,16 @@ def test_out_of_range_field_is_a_usage_error() -> None:
 def test_settings_are_checked() -> None:
     with pytest.raises(UsageError, match=r"link_lost_ms: must be above 0 ms"):
         McuSettings(port="/dev/x", link_lost_ms=0)
-    with pytest.raises(UsageError, match="tx_buffer_bytes: must be at least 38 B"):
-        McuSettings(port="/dev/x", tx_buffer_bytes=10)
+    with pytest.raises(UsageError, match="tx_buffer_bytes: must be at least 41 B"):
+        McuSettings(port="/dev/x", tx_buffer_bytes=10)  # below one frame
     with pytest.raises(UsageError, match="link_timeout_ms: must be at most link_lost_ms"):
         McuSettings(port="/dev/x", link_timeout_ms=60)
 
 
-def test_states_before_the_first_ack_are_held_then_placed_exactly() -> None:
-    # State frames flow from power-on; before the first heartbeat_ack their 16-bit stamps have
-    # no epoch. They are held, placed by the ack, and delivered exact: no sample with raw
-    # ticks, no jump of a multiple of 65536 when the ack comes.
+def test_states_before_the_first_ack_are_placed_at_once() -> None:
+    # State frames flow from power-on; v1 had to hold them until a heartbeat_ack gave their
+    # 16-bit stamps an epoch. v2's 32-bit stamps are the MCU's own count: delivered at once,
+    # and the ack that follows agrees with them (no jump).
     async def main() -> None:
         got: list[StateSample] = []
         # A 50 ms silence before the ping would rightly be a link loss (which drops held frames
@@ -502,13 +503,13 @@ def test_states_before_the_first_ack_are_held_then_placed_exactly() -> None:
         async with pty_link(on_state=got.append, link_lost_ms=10_000) as (link, fake):
             await link.identify()
             t = 5_000_000  # the MCU's count; the host has not seen any of it yet
-            for i in range(60):  # 60 frames 1 ms apart: 0.9 wraps of ticks16 ... 14 wraps
-                fake.send("state", (t + 16_000 * i) & 0xFFFF, i)
-            await wait_for(lambda: link.stats().frames_rx >= 61)
-            assert got == []  # held: nothing to place them by yet
+            for i in range(60):  # 60 frames 1 ms apart: 14 wraps of v1's 16-bit stamp
+                fake.send("state", (t + 16_000 * i) & 0xFFFF_FFFF, i)
+            await wait_for(lambda: len(got) == 60)
             fake.frozen = t + 16_000 * 59 + 500
             await link.ping()
             assert [g.mcu_ticks for g in got] == [t + 16_000 * i for i in range(60)]
+            assert link.clock is not None and link.clock.to_ticks(time.monotonic()) > got[-1].mcu_ticks
             assert all(g.exact for g in got) and [g.encoder for g in got] == list(range(60))
             assert link.stats().states_unanchored == 0
 
@@ -526,13 +527,14 @@ def test_a_stalled_host_is_not_a_link_loss() -> None:
             await link.identify()
             t = fake.frozen = 1_000_000
             await link.ping()
-            fake.seq = (fake.seq + 5) & 0xFF  # 5 frames lost
+            fake.seq = (fake.seq + 5) & 0xFFFF  # 5 frames lost
             time.sleep(0.08)  # fault injection: the loop stalls past the link timeout ...
-            fake.send("state", (t + 1600) & 0xFFFF, 0)  # ... while the MCU kept talking
+            fake.send("state", (t + 1600) & 0xFFFF_FFFF, 0)  # ... while the MCU kept talking
             link._check_link()  # the timer's callback, run before the reader
             assert link.link_up
             await wait_for(lambda: len(got) == 1)
             st = link.stats()
-            assert st.link_losses == 0 and st.lost_frames == 5 and not got[0].exact
+            assert st.link_losses == 0 and st.lost_frames == 5
+            assert got[0].mcu_ticks == t + 1600 and got[0].exact  # v2: the stamp is whole
 
     run(main)

@@ -28,12 +28,50 @@ def small_doc() -> dict:
 def test_default_spec_loads_and_is_consistent() -> None:
     spec = load_spec()
     assert spec.path == DEFAULT_SPEC_PATH.resolve()
-    assert spec.sync == 0xA5 and spec.version >= 1
-    # Sizes the link code relies on (a change here must be a deliberate protocol change).
-    assert spec.by_name("state").size == 4
+    assert spec.sync == 0xA5 and spec.version == 2
+    # Sizes the link code relies on (a change here must be a deliberate protocol change):
+    # v2's 10 kHz pair is a 15-byte state frame and an 11-byte pwm_set.
+    assert spec.by_name("state").size == 6
+    assert spec.by_name("pwm_set").size == 2
     assert spec.by_name("heartbeat_ack").size == 8
+    assert max(m.size for m in spec.messages) <= spec.max_payload
     ids = [m.id for m in spec.messages]
     assert len(ids) == len(set(ids))
+
+
+def test_ack_statuses_come_from_the_spec() -> None:
+    spec = load_spec()
+    assert spec.ack_status[0][0] == "ok"
+    assert spec.ack_meaning(3) == "the stepper axis is already moving"
+    assert spec.ack_meaning(99) == "error code 99"
+
+
+@pytest.mark.parametrize(
+    "raw", [{1: ["bad", "x"]}, {0: "ok"}, {0: ["ok", "fine"], 1: ["not an id", "x"]}]
+)
+def test_bad_ack_status_is_refused(raw) -> None:
+    doc = small_doc()
+    doc["ack_status"] = raw
+    with pytest.raises(ConfigError, match="ack_status"):
+        parse_spec(doc, P)
+
+
+def test_generator_and_host_share_the_parser(tmp_path: Path) -> None:
+    """gen_protocol.py writes every constant from the parsed spec: the version, the frame
+    layout, the hash and the ack statuses the host reads."""
+    import subprocess
+    import sys
+
+    spec = load_spec()
+    out = tmp_path / "protocol_gen.h"
+    gen = Path(__file__).resolve().parents[1] / "firmware" / "gen_protocol.py"
+    subprocess.run([sys.executable, str(gen), "--out", str(out)], check=True)
+    text = out.read_text()
+    assert f"#define PROTOCOL_VERSION {spec.version}u" in text
+    assert f"#define PROTOCOL_TABLE_HASH 0x{spec.table_hash:08X}ul" in text
+    assert "#define PROTO_OVERHEAD 9u" in text
+    for code, (name, _) in spec.ack_status.items():
+        assert f"#define ACK_{name.upper()} {code}u" in text
 
 
 def test_yaml_on_is_a_field_name_not_a_boolean() -> None:

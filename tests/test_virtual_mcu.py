@@ -7,7 +7,6 @@ from the spec even if both sides drifted together.
 
 from __future__ import annotations
 
-import binascii
 import math
 import re
 import struct
@@ -54,9 +53,9 @@ def _struct(name: str) -> struct.Struct:
 def encode(name: str, seq: int = 0, **fields: int) -> bytes:
     m = MSG[name]
     payload = _struct(name).pack(*(fields[f] for f, _ in m["fields"]))
-    body = bytes([len(payload), seq, m["id"]]) + payload
-    # CRC-16/CCITT-FALSE: binascii's CRC-CCITT with init 0xFFFF
-    return bytes([SPEC["sync"]]) + body + struct.pack("<H", binascii.crc_hqx(body, 0xFFFF))
+    # v2: SYNC LEN SEQ(u16) ID PAYLOAD, then CRC-32 (zlib) over all of it
+    body = struct.pack("<BBHB", SPEC["sync"], len(payload), seq, m["id"]) + payload
+    return body + struct.pack("<I", zlib.crc32(body))
 
 
 @dataclass
@@ -77,20 +76,21 @@ class Reader:
         end = time.monotonic() + timeout
         while time.monotonic() < end:
             self.buf += self.port.read(max(1, self.port.in_waiting))
-            while len(self.buf) >= 6:
+            while len(self.buf) >= 9:
                 if self.buf[0] != SPEC["sync"]:
                     del self.buf[0]
                     continue
-                n = self.buf[1] + 6
+                n = self.buf[1] + 9
                 if len(self.buf) < n:
                     break
                 raw = bytes(self.buf[:n])
                 del self.buf[:n]
-                crc = binascii.crc_hqx(raw[1:-2], 0xFFFF)
-                assert crc == struct.unpack("<H", raw[-2:])[0], f"bad CRC in {raw.hex()}"
-                m = BY_ID[raw[3]]
-                values = _struct(m["name"]).unpack(raw[4:-2])
-                yield Frame(raw[2], m["name"], dict(zip([f for f, _ in m["fields"]], values, strict=True)))
+                crc = zlib.crc32(raw[:-4])
+                assert crc == struct.unpack("<I", raw[-4:])[0], f"bad CRC in {raw.hex()}"
+                seq, msg_id = struct.unpack("<HB", raw[2:5])
+                m = BY_ID[msg_id]
+                values = _struct(m["name"]).unpack(raw[5:-4])
+                yield Frame(seq, m["name"], dict(zip([f for f, _ in m["fields"]], values, strict=True)))
 
     def wait(self, name: str, timeout: float = 2.0) -> Frame:
         for f in self.frames(timeout):
@@ -102,8 +102,8 @@ class Reader:
         return [f for f in self.frames(timeout) if f.name == name]
 
 
-def _ticks16_steps(states: list[Frame]) -> set[int]:
-    return {(b.fields["ticks16"] - a.fields["ticks16"]) % 2**16 for a, b in pairwise(states)}
+def _tick_steps(states: list[Frame]) -> set[int]:
+    return {(b.fields["ticks"] - a.fields["ticks"]) % 2**32 for a, b in pairwise(states)}
 
 
 @pytest.fixture
@@ -186,7 +186,7 @@ def test_encoder_follows_shaft(manual: tuple[VirtualMcu, serial.Serial, Reader])
     seen = [s.fields["encoder16"] for s in states]
     for w in want:
         assert w in seen, f"encoder16 {w} never reported; saw {sorted(set(seen))}"
-    assert _ticks16_steps(states) == {CLOCK_HZ // 10_000}, "one state frame per tick, none lost"
+    assert _tick_steps(states) == {CLOCK_HZ // 10_000}, "one state frame per tick, none lost"
 
 
 def test_encoder_moves_linearly_between_feeds_on_the_manual_clock(
@@ -204,11 +204,11 @@ def test_encoder_moves_linearly_between_feeds_on_the_manual_clock(
     states = rd.collect("state", timeout=0.3)
     counts = {}
     for st in states:
-        counts[st.fields["ticks16"]] = st.fields["encoder16"]
+        counts[st.fields["ticks"]] = st.fields["encoder16"]
     for k in range(1, 10):  # the 9 ticks strictly inside the 1 ms ramp
         t = t0 + k * TICK_S
         want = round((a0 + (a1 - a0) * k / 10) / math.tau * 4096)
-        assert counts[round(t * CLOCK_HZ) % 2**16] == want, f"tick {k}"
+        assert counts[round(t * CLOCK_HZ) % 2**32] == want, f"tick {k}"
 
 
 def test_pulse_events_sequence(manual: tuple[VirtualMcu, serial.Serial, Reader]) -> None:
@@ -241,7 +241,7 @@ def test_wall_clock_runs_core() -> None:
         states = rd.collect("state", timeout=0.5)
         elapsed = time.monotonic() - t0
     assert len(states) == pytest.approx(elapsed * 1000, rel=0.3)
-    assert _ticks16_steps(states) == {10 * CLOCK_HZ // 10_000}
+    assert _tick_steps(states) == {10 * CLOCK_HZ // 10_000}
 
 
 def test_steppers_move_and_home(manual: tuple[VirtualMcu, serial.Serial, Reader]) -> None:
@@ -272,7 +272,7 @@ def test_steppers_move_and_home(manual: tuple[VirtualMcu, serial.Serial, Reader]
 
 def test_long_advance_loses_no_frame(manual: tuple[VirtualMcu, serial.Serial, Reader]) -> None:
     # One 0.2 s step of the clock (a plant stepping coarsely, or the pump woken late on a loaded
-    # host) makes 2000 state frames at state_div 1, 20 kB; the host build's TX ring holds 8 kB.
+    # host) makes 2000 state frames at state_div 1, 30 kB; the host build's TX ring holds 8 kB.
     # The UART drains it while time runs (1 ms slices), as the chip's UART would: no SEQ gap,
     # no tx_overflow fault.
     vm, port, rd = manual
@@ -281,5 +281,5 @@ def test_long_advance_loses_no_frame(manual: tuple[VirtualMcu, serial.Serial, Re
     frames = list(rd.frames(0.5))
     states = [f for f in frames if f.name == "state"]
     assert len(states) >= 2000 and not [f for f in frames if f.name == "fault"]
-    assert {(b.seq - a.seq) % 256 for a, b in pairwise(frames)} == {1}
-    assert _ticks16_steps(states) == {CLOCK_HZ // 10_000}
+    assert {(b.seq - a.seq) % 2**16 for a, b in pairwise(frames)} == {1}
+    assert _tick_steps(states) == {CLOCK_HZ // 10_000}

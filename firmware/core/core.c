@@ -50,12 +50,13 @@ void core_stats(core_stats_t *s)
     s->crc_errors = core_parser.crc_errors;
     s->resyncs = core_parser.resyncs;
     s->tx_dropped = frame_tx_dropped();
+    s->duplicates = core_parser.duplicates;
 }
 
 static void send_state(uint32_t now, int32_t encoder)
 {
     uint8_t p[MSG_STATE_LEN];
-    msg_state_t m = {(uint16_t)now, (int16_t)encoder};
+    msg_state_t m = {now, (int16_t)encoder};
     msg_state_pack(p, &m);
     frame_send(MSG_STATE_ID, p, sizeof p);
 }

@@ -17,7 +17,7 @@ extern core_config_t core_cfg;
 
 typedef struct {
     uint32_t rx_frames;
-    uint16_t crc_errors, resyncs, tx_dropped;
+    uint16_t crc_errors, resyncs, tx_dropped, duplicates;
 } core_stats_t;
 
 void core_init(void);

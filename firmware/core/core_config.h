@@ -18,8 +18,9 @@
 #define CORE_DEFAULT_WATCHDOG_MS 200u
 #define CORE_DEFAULT_STATE_DIV 10u /* 1 kHz state frames */
 #define CORE_DEFAULT_MAX_ON_MS 0u  /* 0 = no max-on limit */
-/* ticks16 in the state frame wraps every 65536 / BOARD_CLOCK_HZ = 4.096 ms: the host can only
- * unwrap it when frames come more often than that, so state_div is capped at 40 (4 ms). */
+/* The state frame's stamp is the full 32-bit tick count (protocol v2), but encoder16 is only
+ * unwrapped by the host from one frame to the next: state_div stays capped at 40 (4 ms), within
+ * which the shaft cannot move 32768 counts. */
 #define CORE_MAX_STATE_DIV 40u
 
 #define STEPPER_AXES 2u
@@ -28,10 +29,6 @@
 #define STEPPER_HOME_MAX_STEPS 100000ul
 #define STEPPER_STATE_EVERY 1000u /* ticks between stepper_state frames while moving (0.1 s) */
 
-/* ack.status values (status 0 = ok). */
-#define ACK_OK 0u
-#define ACK_BAD_ARG 1u      /* a field is out of range */
-#define ACK_NO_HEARTBEAT 2u /* outputs are refused until a heartbeat arms the watchdog */
-#define ACK_BUSY 3u         /* the stepper axis is already moving */
+/* ack.status values (ACK_*): generated from protocol.yaml ack_status into protocol_gen.h. */
 
 #endif

@@ -123,7 +123,7 @@ static void handle_config_set(const frame_t *f)
 {
     msg_config_set_t m;
     msg_config_set_unpack(f->payload, &m);
-    /* The watchdog cannot be disabled; state_div is capped so ticks16 stays unwrappable. */
+    /* The watchdog cannot be disabled; state_div is capped (core_config.h). */
     if (m.watchdog_ms == 0 || m.state_div > CORE_MAX_STATE_DIV) {
         send_ack(f, ACK_BAD_ARG);
         return;
@@ -140,7 +140,7 @@ static void handle_stats_req(const frame_t *f)
     core_stats_t s;
     core_stats(&s);
     uint8_t p[MSG_STATS_LEN];
-    msg_stats_t m = {s.rx_frames, s.crc_errors, s.resyncs, s.tx_dropped};
+    msg_stats_t m = {s.rx_frames, s.crc_errors, s.resyncs, s.tx_dropped, s.duplicates};
     msg_stats_pack(p, &m);
     frame_send(MSG_STATS_ID, p, sizeof p);
 }

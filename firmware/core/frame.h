@@ -1,4 +1,5 @@
-/* Wire framing: the receive parser (with resync) and the transmit ring writer. */
+/* Wire framing (protocol v2): the receive parser (with resync and duplicate suppression) and
+ * the transmit ring writer. Frame: SYNC | LEN | SEQ u16 | ID | PAYLOAD | CRC32 (over SYNC..). */
 #ifndef FRAME_H
 #define FRAME_H
 #include <stdbool.h>
@@ -8,7 +9,8 @@
 #include "protocol_gen.h"
 
 typedef struct {
-    uint8_t seq, id, len;
+    uint16_t seq;
+    uint8_t id, len;
     const uint8_t *payload;
 } frame_t;
 
@@ -18,9 +20,12 @@ typedef struct {
     uint8_t buf[PROTO_MAX_FRAME];
     uint8_t n;          /* bytes buffered, buf[0] is a SYNC candidate once n > 0 */
     bool hunting;       /* sync lost; junk is counted once per run, not per byte */
-    uint32_t rx_frames; /* frames with a good CRC */
+    bool have_seq;      /* last_seq is valid */
+    uint16_t last_seq;  /* SEQ of the last frame delivered */
+    uint32_t rx_frames; /* frames with a good CRC (duplicates included) */
     uint16_t crc_errors;
-    uint16_t resyncs;   /* bad CRC + impossible LEN + runs of junk where a SYNC was due */
+    uint16_t resyncs;    /* bad CRC + impossible header + runs of junk where a SYNC was due */
+    uint16_t duplicates; /* good frames repeating the last SEQ: dropped, not executed */
     frame_handler_t on_frame;
 } frame_parser_t;
 
@@ -29,16 +34,22 @@ void frame_parser_init(frame_parser_t *p, frame_handler_t on_frame);
 void frame_parser_scan(frame_parser_t *p);
 
 /* Feed one received byte; calls on_frame for each good frame (main context). Inline fast
- * path for the bytes inside a frame whose header looks sane (most bytes): on AVR the out-of-
- * line scan costs ~90 cycles of register saves alone, more than a byte time at 2 Mbaud. */
+ * path for every byte of a frame whose header looks sane (SYNC, LEN, then LEN = size of ID):
+ * the out-of-line scan runs only on the last byte or on a bad one. On AVR a call to it costs
+ * ~90 cycles of register saves alone, more than a byte time at 2 Mbaud. */
 static inline void frame_parser_feed(frame_parser_t *p, uint8_t b)
 {
     uint8_t n = p->n;
     p->buf[n++] = b;
     p->n = n;
-    if (n > 2 && p->buf[0] == PROTO_SYNC && p->buf[1] <= PROTO_MAX_PAYLOAD &&
-        n < (uint8_t)(p->buf[1] + PROTO_OVERHEAD))
-        return;
+    if (p->buf[0] == PROTO_SYNC) {
+        if (n < 2)
+            return;
+        uint8_t len = p->buf[PROTO_OFF_LEN];
+        if (len <= PROTO_MAX_PAYLOAD && n < (uint8_t)(len + PROTO_OVERHEAD) &&
+            (n != PROTO_HEADER || proto_h2m_len(p->buf[PROTO_OFF_ID]) == len))
+            return;
+    }
     frame_parser_scan(p);
 }
 

@@ -2,7 +2,7 @@
 
 #include <string.h>
 
-#include "crc16.h"
+#include "crc32.h"
 #include "protocol_gen.h"
 #include "stepper.h"
 
@@ -10,7 +10,7 @@ fake_board_t fb;
 static uint32_t next_tick;
 static uint32_t step_due;
 static bool step_active;
-static uint8_t host_seq;
+static uint16_t host_seq;
 
 uint32_t board_ticks(void) { return fb.now; }
 int32_t board_encoder(void) { return fb.encoder; }
@@ -67,22 +67,21 @@ void fake_advance(uint32_t dt)
     fb.now = end;
 }
 
-uint8_t fake_encode(uint8_t *buf, uint8_t seq, uint8_t id, const uint8_t *payload, uint8_t len)
+uint8_t fake_encode(uint8_t *buf, uint16_t seq, uint8_t id, const uint8_t *payload, uint8_t len)
 {
     buf[0] = PROTO_SYNC;
-    buf[1] = len;
-    buf[2] = seq;
-    buf[3] = id;
-    memcpy(buf + 4, payload, len);
-    uint16_t crc = crc16(buf + 1, (uint8_t)(len + 3), CRC16_INIT);
-    buf[4 + len] = (uint8_t)crc;
-    buf[5 + len] = (uint8_t)(crc >> 8);
-    return (uint8_t)(len + 6);
+    buf[PROTO_OFF_LEN] = len;
+    proto_put_u16(buf + PROTO_OFF_SEQ, seq);
+    buf[PROTO_OFF_ID] = id;
+    if (len)
+        memcpy(buf + PROTO_HEADER, payload, len);
+    proto_put_u32(buf + PROTO_HEADER + len, crc32(buf, (uint8_t)(PROTO_HEADER + len)));
+    return (uint8_t)(len + PROTO_OVERHEAD);
 }
 
 void fake_send(uint8_t id, const uint8_t *payload, uint8_t len)
 {
-    uint8_t buf[PROTO_MAX_FRAME];
+    uint8_t buf[PROTO_MAX_FRAME + 16];
     uint8_t n = fake_encode(buf, host_seq++, id, payload, len);
     for (uint8_t i = 0; i < n; i++)
         core_rx_byte(buf[i]);
@@ -91,28 +90,27 @@ void fake_send(uint8_t id, const uint8_t *payload, uint8_t len)
 
 int fake_recv(fake_frame_t *f)
 {
-    uint8_t hdr[4];
+    uint8_t raw[PROTO_HEADER + 64 + PROTO_CRC_BYTES];
     for (;;) {
-        if (!core_tx_pop(&hdr[0]))
+        if (!core_tx_pop(&raw[0]))
             return -1;
-        if (hdr[0] == PROTO_SYNC)
+        if (raw[0] == PROTO_SYNC)
             break;
     }
-    for (int i = 1; i < 4; i++)
-        if (!core_tx_pop(&hdr[i]))
+    for (unsigned i = 1; i < PROTO_HEADER; i++)
+        if (!core_tx_pop(&raw[i]))
             return -1;
-    f->len = hdr[1];
-    f->seq = hdr[2];
-    f->id = hdr[3];
-    for (uint8_t i = 0; i < f->len; i++)
-        if (!core_tx_pop(&f->payload[i]))
+    f->len = raw[PROTO_OFF_LEN];
+    f->seq = proto_get_u16(raw + PROTO_OFF_SEQ);
+    f->id = raw[PROTO_OFF_ID];
+    if (f->len > 64)
+        return -2;
+    for (uint8_t i = 0; i < f->len + PROTO_CRC_BYTES; i++)
+        if (!core_tx_pop(&raw[PROTO_HEADER + i]))
             return -1;
-    uint8_t c[2];
-    if (!core_tx_pop(&c[0]) || !core_tx_pop(&c[1]))
-        return -1;
-    uint16_t crc = crc16(hdr + 1, 3, CRC16_INIT);
-    crc = crc16(f->payload, f->len, crc);
-    if (crc != proto_get_u16(c))
+    memcpy(f->payload, raw + PROTO_HEADER, f->len);
+    uint8_t body = (uint8_t)(PROTO_HEADER + f->len);
+    if (crc32(raw, body) != proto_get_u32(raw + body))
         return -2;
     return f->id;
 }

@@ -33,14 +33,15 @@ void fake_advance(uint32_t dt);
 void fake_send(uint8_t id, const uint8_t *payload, uint8_t len);
 /* Next MCU->host frame from the TX ring; returns its id or -1. */
 typedef struct {
-    uint8_t seq, id, len;
+    uint16_t seq;
+    uint8_t id, len;
     uint8_t payload[64];
 } fake_frame_t;
 int fake_recv(fake_frame_t *f);
 /* Receive until a frame of `id` (skipping others); returns 1 if found. */
 int fake_recv_id(uint8_t id, fake_frame_t *f);
 /* Encode a frame into buf, return its length. */
-uint8_t fake_encode(uint8_t *buf, uint8_t seq, uint8_t id, const uint8_t *payload, uint8_t len);
+uint8_t fake_encode(uint8_t *buf, uint16_t seq, uint8_t id, const uint8_t *payload, uint8_t len);
 
 /* Protocol helpers: a heartbeat, a config_set, and the status of the next ack (-1: none). */
 void fake_heartbeat(uint32_t host_us);

@@ -1,7 +1,10 @@
 """Virtual MCU: the real firmware core, built for the host, behind a real pseudo-terminal.
 
 The same C core that runs on the ATmega328P (``firmware/core``) is compiled with a host board
-layer into ``firmware/build/libtvsmcu_host.so`` and loaded here with ctypes. A thread pumps
+layer into a shared library and loaded here with ctypes: in a source checkout
+``firmware/build/libtvsmcu_host.so`` (``make -C firmware host-lib``; the top Makefile's ``run`` and
+``pytest`` build it), in an installed wheel ``tvsd/sim/_vmcu*.so`` (compiled by setup.py when the
+wheel was built). It is never built while tvsd runs. A thread pumps
 bytes between a pty and the core, so anything that opens :attr:`VirtualMcu.port` with pyserial
 talks to the firmware's own parser, command table, watchdog and stepper planner, byte for byte.
 
@@ -29,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import importlib.util
 import math
 import os
 import select
@@ -45,7 +49,8 @@ from typing import Literal
 from tvsd.errors import DeviceError
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
-LIBRARY = FIRMWARE_DIR / "build" / "libtvsmcu_host.so"
+LIBRARY = FIRMWARE_DIR / "build" / "libtvsmcu_host.so"  # the checkout's (make -C firmware host-lib)
+PACKAGED_MODULE = "tvsd.sim._vmcu"  # the wheel's (setup.py's build_ext)
 
 PULSE_ZERO = 0
 PULSE_OPTICAL = 1
@@ -60,8 +65,42 @@ class VirtualMcuError(DeviceError):
     """The virtual MCU cannot be built, loaded or used as asked."""
 
 
+def packaged_library() -> Path | None:
+    """The core compiled into the installed package (a ctypes library: never imported)."""
+    try:
+        found = importlib.util.find_spec(PACKAGED_MODULE)
+    except (ImportError, ValueError):
+        return None
+    return Path(found.origin) if found is not None and found.origin else None
+
+
+def default_library() -> Path:
+    """The library to load: the checkout's build when this is a source checkout, else the wheel's.
+
+    Raises VirtualMcuError with the fix when neither exists (nothing is compiled here)."""
+    if (FIRMWARE_DIR / "Makefile").is_file():  # a source checkout
+        if LIBRARY.is_file():
+            return LIBRARY
+        packaged = packaged_library()
+        if packaged is not None and packaged.is_file():
+            return packaged  # `pip install -e .` compiled it from these sources
+        raise VirtualMcuError(
+            f"the virtual MCU library {LIBRARY} is not built. Fix: make -C {FIRMWARE_DIR} host-lib "
+            "(or `make run` / `make test`, which build it)"
+        )
+    packaged = packaged_library()
+    if packaged is not None and packaged.is_file():
+        return packaged
+    raise VirtualMcuError(
+        f"this tvsd install has no virtual MCU library ({PACKAGED_MODULE.replace('.', '/')}*.so): "
+        "the wheel was built without it. Fix: reinstall from a wheel built on a machine with a C "
+        "compiler (pip wheel . in the source tree; README, Installing on the scanner)"
+    )
+
+
 def build_library(path: Path = LIBRARY) -> Path:
-    """Build the host library with ``make -C firmware host-lib`` if it is missing."""
+    """Build the checkout's library with ``make -C firmware host-lib`` if it is missing: for the
+    test suite and developers, never called by tvsd itself."""
     if path.exists():
         return path
     missing = [tool for tool in ("make", "gcc") if shutil.which(tool) is None]
@@ -135,7 +174,7 @@ class VirtualMcu:
         self.counts_per_rev = counts_per_rev
         self.drive_volts = drive_volts
         self.clock = clock
-        self._lib, self._tmpdir = _load(build_library(library or LIBRARY))
+        self._lib, self._tmpdir = _load(library or default_library())
         self._lib.vmcu_init()
         self.clock_hz: int = self._lib.vmcu_clock_hz()
         self._lock = threading.Lock()

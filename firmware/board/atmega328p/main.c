@@ -36,14 +36,17 @@ int main(void)
             core_tick(t, enc);
         }
         core_poll();
-        /* Idle until the next interrupt (the 10 kHz tick at the latest). Interrupts are off
-         * while we look for work; SEI takes effect after SLEEP, so no wake-up is missed. */
+        /* Idle until an interrupt leaves work (the 10 kHz tick at the latest). Interrupts are
+         * off while we look for work; SEI takes effect after SLEEP, so no wake-up is missed.
+         * A wake-up that leaves no work (the UART-empty interrupt, one per byte sent: 15 per
+         * state frame) goes straight back to sleep instead of running a whole pass. */
         cli();
-        if (!board_tick_pending && !board_rx_pending()) {
+        while (!board_tick_pending && !board_rx_pending() && !core_events) {
             sleep_enable();
             sei();
             sleep_cpu();
             sleep_disable();
+            cli();
         }
         sei();
     }

@@ -1,60 +1,38 @@
-"""Frames on the MCU serial line: encoder, incremental decoder with resync, CRC-16.
+"""Frames on the MCU serial line (protocol v2): encoder, incremental decoder with resync.
 
-Frame (little-endian): SYNC | LEN | SEQ | ID | PAYLOAD[LEN] | CRC16, the CRC over LEN..PAYLOAD
-(firmware/protocol.yaml). The decoder takes arbitrary chunks, as os.read hands them over, and
-returns whole frames. A bad CRC or an impossible header drops one byte and hunts for the next
-SYNC, so a frame that follows a damaged one is never lost with it.
+Frame (little-endian): SYNC | LEN u8 | SEQ u16 | ID u8 | PAYLOAD[LEN] | CRC32 u32, the CRC-32
+(zlib) over SYNC..PAYLOAD (firmware/protocol.yaml). The decoder takes arbitrary chunks, as
+os.read hands them over, and returns whole frames. An impossible header (LEN not the size of ID)
+or a bad CRC drops one byte and hunts for the next SYNC in the bytes already held, so a frame that
+follows a damaged one is never lost with it. A frame repeating the previous SEQ is dropped.
 """
 
 from __future__ import annotations
 
-import binascii
 import time
+import zlib
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 
-from tvsd.hw.mcu.spec import FRAME_OVERHEAD
+from tvsd.hw.mcu.spec import FRAME_CRC, FRAME_HEADER, FRAME_OVERHEAD, SEQ_MODULO
 
 SYNC = 0xA5
-MAX_PAYLOAD = 32
-HEADER = 4  # SYNC, LEN, SEQ, ID
+MAX_PAYLOAD = 16
+HEADER = FRAME_HEADER  # SYNC, LEN, SEQ (2), ID
+_SEQ_MASK = SEQ_MODULO - 1
 
 
-def _crc16_table() -> tuple[int, ...]:
-    table = []
-    for byte in range(256):
-        crc = byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else (crc << 1)
-        table.append(crc & 0xFFFF)
-    return tuple(table)
-
-
-CRC16_TABLE = _crc16_table()
-
-
-def crc16_table_driven(data: bytes | bytearray | memoryview, crc: int = 0xFFFF) -> int:
-    """CRC-16/CCITT-FALSE, byte-wise table lookup: the reference the firmware mirrors in C."""
-    for b in bytes(data):
-        crc = ((crc << 8) & 0xFF00) ^ CRC16_TABLE[(crc >> 8) ^ b]
-    return crc
-
-
-def crc16(data: bytes | bytearray | memoryview, crc: int = 0xFFFF) -> int:
-    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final xor).
-
-    binascii.crc_hqx is the same table-driven CRC-CCITT in C with the init value as argument;
-    it is ~20x faster than the Python loop above, which the tests hold it equal to.
-    """
-    return binascii.crc_hqx(data, crc)
+def crc32(data: bytes | bytearray | memoryview) -> int:
+    """CRC-32/ISO-HDLC (zlib's, in C): what the firmware's table-driven crc32 computes."""
+    return zlib.crc32(data)
 
 
 def encode_frame(seq: int, msg_id: int, payload: bytes = b"", sync: int = SYNC) -> bytes:
     if not 0 <= len(payload) <= 0xFF:
         raise ValueError(f"payload of {len(payload)} bytes does not fit the LEN byte")
-    body = bytes((len(payload), seq & 0xFF, msg_id & 0xFF)) + payload
-    crc = crc16(body)
-    return bytes((sync,)) + body + bytes((crc & 0xFF, crc >> 8))
+    s = seq & _SEQ_MASK
+    body = bytes((sync, len(payload), s & 0xFF, s >> 8, msg_id & 0xFF)) + payload
+    return body + zlib.crc32(body).to_bytes(FRAME_CRC, "little")
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,7 +54,7 @@ class DecoderStats:
     # CRC, each impossible header, and each run of junk where a SYNC was expected
     resyncs: int = 0
     bytes_dropped: int = 0  # bytes discarded while hunting for SYNC
-    lost_frames: int = 0  # frames missing by SEQ gaps (modulo 256: a gap >= 256 aliases)
+    lost_frames: int = 0  # frames missing by SEQ gaps (modulo 65536: a gap >= 65536 aliases)
     duplicates: int = 0  # a frame repeating the previous SEQ (dropped, not delivered)
 
     def as_dict(self) -> dict[str, int]:
@@ -120,6 +98,8 @@ class FrameDecoder:
         out: list[Frame] = []
         st = self.stats
         sizes = self.payload_sizes
+        max_payload = self.max_payload
+        crc = zlib.crc32
         pos = 0
         n = len(buf)
         while pos < n:
@@ -132,34 +112,39 @@ class FrameDecoder:
                 st.bytes_dropped += j - pos
                 pos = j
                 continue
-            if n - pos < HEADER:
+            if n - pos < 2:
                 break
             length = buf[pos + 1]
-            msg_id = buf[pos + 3]
-            if length > self.max_payload or (sizes is not None and sizes.get(msg_id) != length):
+            # the length check, as soon as its bytes are in: LEN fits, and is the size of ID
+            bad = length > max_payload
+            if not bad and n - pos >= HEADER and sizes is not None:
+                bad = sizes.get(buf[pos + 4]) != length
+            if bad:
                 st.bad_headers += 1
                 self._lose_sync()
                 st.bytes_dropped += 1
                 pos += 1
                 continue
-            end = pos + HEADER + length + 2
+            body = pos + HEADER + length
+            end = body + FRAME_CRC
             if n < end:
                 break
-            if binascii.crc_hqx(buf[pos + 1 : end - 2], 0xFFFF) != (buf[end - 2] | buf[end - 1] << 8):
+            if crc(buf[pos:body]) != int.from_bytes(buf[body:end], "little"):
                 st.crc_errors += 1
                 self._lose_sync()
                 st.bytes_dropped += 1
                 pos += 1
                 continue
             self._hunting = False
-            seq = buf[pos + 2]
-            payload = bytes(buf[pos + HEADER : end - 2])
+            seq = buf[pos + 2] | buf[pos + 3] << 8
+            msg_id = buf[pos + 4]
+            payload = bytes(buf[pos + HEADER : body])
             pos = end
             last = self._last_seq
             gap = 0
             if last is not None:
-                gap = (seq - last - 1) & 0xFF
-                if gap == 0xFF:  # the same SEQ again: a repeated frame
+                gap = (seq - last - 1) & _SEQ_MASK
+                if gap == _SEQ_MASK:  # the same SEQ again: a repeated frame
                     st.duplicates += 1
                     continue
                 st.lost_frames += gap
@@ -171,14 +156,14 @@ class FrameDecoder:
 
 
 def bench_decode(n: int = 100_000, chunk: int = 64) -> dict[str, float]:
-    """Decode cost per frame: n 10 kHz ``state`` frames (4-byte payload) fed in ``chunk``-byte
+    """Decode cost per frame: n 10 kHz ``state`` frames (6-byte payload) fed in ``chunk``-byte
     reads (a USB full-speed packet is 64 bytes). Returns frames/s and µs/frame."""
     from tvsd.hw.mcu.spec import load_spec
 
     spec = load_spec()
     state = spec.by_name("state")
     stream = b"".join(
-        encode_frame(i, state.id, state.codec.pack(i & 0xFFFF, (i * 7) & 0x7FFF)) for i in range(n)
+        encode_frame(i, state.id, state.codec.pack(i * 1600, (i * 7) & 0x7FFF)) for i in range(n)
     )
     dec = FrameDecoder(spec.sync, spec.max_payload, spec.payload_sizes("m2h"))
     mv = memoryview(stream)

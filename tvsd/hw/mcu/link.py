@@ -51,15 +51,12 @@ from tvsd.hw.mcu.messages import (
     ack_meaning,
     check_against,
 )
-from tvsd.hw.mcu.placement import ACK_SLACK_TICKS, GUESS_SLACK_TICKS, HOLD_MAX, StateSample, TickPlacer
+from tvsd.hw.mcu.placement import StateSample, TickPlacer
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import ProtocolSpec, load_spec
 
 __all__ = [
-    "ACK_SLACK_TICKS",
     "FLASH_HINT",
-    "GUESS_SLACK_TICKS",
-    "HOLD_MAX",
     "FaultEvent",
     "LinkStats",
     "McuLink",
@@ -67,14 +64,30 @@ __all__ = [
     "PulseEvent",
     "Refusal",
     "StateSample",
+    "check_identity",
     "open_serial",
 ]
 
 log = logging.getLogger(__name__)
 
 FLASH_HINT = (
-    "flash the firmware of this tvsd version (make -C firmware, then avrdude: hil/README.md, section MCU)"
+    "flash the firmware image of this tvsd (make -C firmware, then avrdude: hil/README.md, section MCU)"
 )
+
+
+def check_identity(ident: Identify, spec: ProtocolSpec, port: str) -> None:
+    """Refuse an MCU that speaks another protocol: one line, seen vs expected, and the fix."""
+    if ident.proto_version != spec.version:
+        raise ProtocolError(
+            f"the MCU on {port} speaks protocol v{ident.proto_version}, this tvsd speaks "
+            f"v{spec.version}: {FLASH_HINT}"
+        )
+    if ident.table_hash != spec.table_hash:
+        raise ProtocolError(
+            f"the MCU on {port} has command table 0x{ident.table_hash:08X} (protocol "
+            f"v{ident.proto_version}), this tvsd expects 0x{spec.table_hash:08X}: the firmware "
+            f"was built from another protocol.yaml; {FLASH_HINT}"
+        )
 
 
 REFUSAL_LOG_INTERVAL_S = 1.0  # the same refusal is logged at most this often (with a count)
@@ -195,7 +208,7 @@ class McuLink:
         self._tx_seq = 0
         self._tx_error: OSError | None = None
         # what went out under each SEQ: an ack names the frame by its SEQ only
-        self._sent: list[tuple[str, tuple[int, ...]]] = [("", ())] * 256
+        self._sent: list[tuple[str, tuple[int, ...]]] = [("", ())] * 0x1_0000
         # receive side: event-loop thread only
         self._last_rx = -math.inf
         self._watchdog: asyncio.TimerHandle | None = None
@@ -284,13 +297,7 @@ class McuLink:
                 f"{self.settings.identify_timeout_s} s: is the firmware flashed, the board "
                 f"powered and the baud rate ({self.settings.baud}) the firmware's?"
             )
-        want_v, want_h = self.spec.version, self.spec.table_hash
-        if ident.proto_version != want_v or ident.table_hash != want_h:
-            raise ProtocolError(
-                f"MCU reports protocol v{ident.proto_version}, table hash "
-                f"0x{ident.table_hash:08X}; this tvsd needs v{want_v} hash 0x{want_h:08X}: "
-                f"{FLASH_HINT}"
-            )
+        check_identity(ident, self.spec, self.settings.port)
         if ident.clock_hz == 0:
             raise ProtocolError("MCU reports a clock of 0 Hz: its identify frame is wrong")
         self.identity = ident
@@ -410,7 +417,7 @@ class McuLink:
                 return False
             # SEQ only advances for frames that go out: a gap at the MCU is a loss on the wire
             self._sent[self._tx_seq] = (name, values)
-            self._tx_seq = (self._tx_seq + 1) & 0xFF
+            self._tx_seq = (self._tx_seq + 1) & 0xFFFF
             self._tx_pending += frame
             self._stats.frames_tx += 1
             self._flush_locked()
@@ -541,7 +548,7 @@ class McuLink:
             self.on_state(sample)
 
     def _on_state(self, msg: State, now: float) -> None:
-        self._placer.on_state(msg.ticks16, msg.encoder16, now, self.clock)
+        self._placer.on_state(msg.ticks, msg.encoder16, now, self.clock)
 
     def _on_pulse(self, msg: Pulse, now: float) -> None:
         # event_seq counts pulse events of all channels together (see the protocol notes)

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 
 from tvsd.errors import ProtocolError
-from tvsd.hw.mcu.spec import ProtocolSpec
+from tvsd.hw.mcu.spec import ProtocolSpec, load_spec
 
 
 @dataclass(frozen=True, slots=True)
@@ -30,7 +30,7 @@ class HeartbeatAck:
 
 @dataclass(frozen=True, slots=True)
 class State:
-    ticks16: int
+    ticks: int  # the MCU's 32-bit tick count when the sample was taken
     encoder16: int
 
 
@@ -82,20 +82,13 @@ class McuStats:
     crc_errors: int
     resyncs: int
     tx_dropped: int
+    duplicates: int  # repeated host frames the MCU dropped unexecuted
 
 
-# ack.status meanings: firmware/core/core_config.h (ACK_*). protocol.yaml lists fault codes but
-# not these, so they are mirrored here by hand.
-ACK_STATUS: dict[int, str] = {
-    0: "ok",
-    1: "a field is out of range",
-    2: "outputs are refused until a heartbeat arms the watchdog",
-    3: "the stepper axis is already moving",
-}
-
-
-def ack_meaning(status: int) -> str:
-    return ACK_STATUS.get(status, f"error code {status}")
+def ack_meaning(status: int, spec: ProtocolSpec | None = None) -> str:
+    """What an ack status means, from protocol.yaml's ack_status (the firmware's ACK_* come from
+    the same table)."""
+    return (spec or load_spec()).ack_meaning(status)
 
 
 Message = Identify | HeartbeatAck | State | Pulse | Fault | StepperState | Ack | McuStats

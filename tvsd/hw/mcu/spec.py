@@ -1,9 +1,14 @@
 """The wire protocol, loaded from firmware/protocol.yaml (the single source of truth).
 
-The firmware's C header is generated from the same file; this module builds one ``MessageSpec``
-(id, name, direction, fields and a ``struct.Struct``) per message, validates the file, and computes
-the command-table hash that the MCU reports in its ``identify`` frame, exactly as the YAML header
-defines it.
+This module holds the one parser of that file: the firmware's C header is generated with it
+(firmware/gen_protocol.py imports ``parse_spec``), and the host builds from it one ``MessageSpec``
+(id, name, direction, fields and a ``struct.Struct``) per message, the ack statuses, and the
+command-table hash that the MCU reports in its ``identify`` frame, exactly as the YAML header
+defines it. It needs only the standard library, PyYAML and tvsd.errors, so the generator can run
+in a bare build environment.
+
+Where the file is: in a source checkout, ``firmware/protocol.yaml``; in an installed wheel, the
+copy the build put beside this module (``tvsd/hw/mcu/protocol.yaml``, see setup.py).
 """
 
 from __future__ import annotations
@@ -20,8 +25,12 @@ import yaml
 
 from tvsd.errors import ConfigError, ProtocolError
 
-# <repo>/firmware/protocol.yaml, seen from <repo>/tvsd/hw/mcu/spec.py
-DEFAULT_SPEC_PATH = Path(__file__).resolve().parents[3] / "firmware" / "protocol.yaml"
+# <repo>/firmware/protocol.yaml, seen from <repo>/tvsd/hw/mcu/spec.py (a source checkout)
+CHECKOUT_SPEC_PATH = Path(__file__).resolve().parents[3] / "firmware" / "protocol.yaml"
+# the copy setup.py's build step ships in the wheel
+PACKAGED_SPEC_PATH = Path(__file__).resolve().parent / "protocol.yaml"
+# The checkout's file wins when there is one: a stale packaged copy must never shadow it.
+DEFAULT_SPEC_PATH = CHECKOUT_SPEC_PATH if CHECKOUT_SPEC_PATH.exists() else PACKAGED_SPEC_PATH
 
 # protocol type -> (struct code, min, max)
 TYPES: dict[str, tuple[str, int, int]] = {
@@ -35,7 +44,11 @@ TYPES: dict[str, tuple[str, int, int]] = {
 H2M, M2H = "h2m", "m2h"
 # id ranges by direction, as the YAML comments state them
 ID_RANGES = {H2M: range(0x01, 0x80), M2H: range(0x80, 0x100)}
-FRAME_OVERHEAD = 6  # SYNC, LEN, SEQ, ID, CRC16
+# Frame v2: SYNC u8 | LEN u8 | SEQ u16 | ID u8 | PAYLOAD | CRC32 u32 (protocol.yaml header)
+FRAME_HEADER = 5  # SYNC, LEN, SEQ (2), ID
+FRAME_CRC = 4  # CRC-32 over SYNC..PAYLOAD
+FRAME_OVERHEAD = FRAME_HEADER + FRAME_CRC
+SEQ_MODULO = 0x1_0000
 # The firmware's control tick (firmware/core/core_config.h CORE_TICK_HZ): it samples the encoder,
 # and `state_div` counts these ticks between state frames.
 CONTROL_TICK_HZ = 10_000
@@ -93,6 +106,7 @@ class ProtocolSpec:
     fault_codes: Mapping[int, str]
     pulse_channels: Mapping[int, str]
     boards: Mapping[int, str]
+    ack_status: Mapping[int, tuple[str, str]]  # status -> (name, meaning)
     path: Path
 
     def by_name(self, name: str) -> MessageSpec:
@@ -110,6 +124,13 @@ class ProtocolSpec:
     def payload_sizes(self, direction: str) -> dict[int, int]:
         """id -> payload size of the messages a receiver in ``direction`` may see."""
         return {m.id: m.size for m in self.messages if m.dir == direction}
+
+    def max_frame(self) -> int:
+        return self.max_payload + FRAME_OVERHEAD
+
+    def ack_meaning(self, status: int) -> str:
+        entry = self.ack_status.get(status)
+        return entry[1] if entry is not None else f"error code {status}"
 
     @property
     def canonical_text(self) -> str:
@@ -141,6 +162,22 @@ def _int_map(raw: Any, key: str, path: Path) -> dict[int, str]:
     return {int(k): str(v) for k, v in raw.items()}
 
 
+def _ack_map(raw: Any, path: Path) -> dict[int, tuple[str, str]]:
+    if raw is None:
+        return {}
+    ok = isinstance(raw, dict) and all(
+        isinstance(k, int) and 0 <= k <= 0xFF and isinstance(v, list) and len(v) == 2
+        and isinstance(v[0], str) and v[0].isidentifier() and isinstance(v[1], str)
+        for k, v in raw.items()
+    )
+    if not ok:
+        raise ConfigError(f"{path}: 'ack_status' must map 0..255 to [name, meaning]")
+    out = {int(k): (str(v[0]), str(v[1])) for k, v in raw.items()}
+    if out.get(0, ("",))[0] != "ok":
+        raise ConfigError(f"{path}: ack_status 0 must be [ok, ...]: the firmware acks success with 0")
+    return out
+
+
 def parse_spec(doc: Any, path: Path) -> ProtocolSpec:
     """Validate a loaded protocol document and build the spec; every problem names the file."""
     if not isinstance(doc, dict):
@@ -153,9 +190,9 @@ def parse_spec(doc: Any, path: Path) -> ProtocolSpec:
         raise ConfigError(f"{path}: version must be an integer 0..65535, got {version!r}")
     if not isinstance(sync, int) or not 0 <= sync <= 0xFF:
         raise ConfigError(f"{path}: sync must be one byte, got {sync!r}")
-    # LEN is one byte on the wire
-    if not isinstance(max_payload, int) or not 0 < max_payload <= 0xFF:
-        raise ConfigError(f"{path}: max_payload must be 1..255, got {max_payload!r}")
+    # LEN is one byte on the wire, and the C parser indexes its buffer with a byte
+    if not isinstance(max_payload, int) or not 0 < max_payload <= 0xFF - FRAME_OVERHEAD:
+        raise ConfigError(f"{path}: max_payload must be 1..{0xFF - FRAME_OVERHEAD}, got {max_payload!r}")
     raw_msgs = doc["messages"]
     if not isinstance(raw_msgs, list) or not raw_msgs:
         raise ConfigError(f"{path}: 'messages' must be a non-empty list")
@@ -209,12 +246,13 @@ def parse_spec(doc: Any, path: Path) -> ProtocolSpec:
         fault_codes=_int_map(doc.get("fault_codes"), "fault_codes", path),
         pulse_channels=_int_map(doc.get("pulse_channels"), "pulse_channels", path),
         boards=_int_map(doc.get("boards"), "boards", path),
+        ack_status=_ack_map(doc.get("ack_status"), path),
         path=path,
     )
 
 
 def load_spec(path: str | Path | None = None) -> ProtocolSpec:
-    """Load and validate protocol.yaml (default: the one of this tvsd checkout)."""
+    """Load and validate protocol.yaml (default: the checkout's, else the one shipped in the wheel)."""
     p = Path(path) if path is not None else DEFAULT_SPEC_PATH
     return _load_cached(p.resolve())
 
@@ -225,8 +263,9 @@ def _load_cached(path: Path) -> ProtocolSpec:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(
-            f"cannot read the protocol spec {path}: {exc.strerror}; it ships in firmware/ of "
-            "the tvsd source tree"
+            f"cannot read the protocol spec {path}: {exc.strerror}; it is firmware/protocol.yaml "
+            "in the tvsd source tree and tvsd/hw/mcu/protocol.yaml in an installed wheel: "
+            "reinstall tvsd from a wheel built by `pip wheel` (setup.py copies it in)"
         ) from exc
     try:
         doc = yaml.safe_load(text)
