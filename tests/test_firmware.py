@@ -1,7 +1,8 @@
 """The firmware's own checks, from pytest: `make -C firmware all test`.
 
-That builds the ATmega328P image (and fails if it outgrows flash or RAM), runs the core's C unit
-tests on the host, and runs the image in simavr (identify handshake, fail-safe timing, load).
+That builds the ATmega328P and STM32F405 images (and fails if one outgrows its flash or RAM),
+runs the core's C unit tests on the host, and runs the AVR image in simavr (identify handshake,
+fail-safe timing, load); tests/test_mcu_stm32.py runs the STM32 image in QEMU.
 The top Makefile installs the toolchain; where it is absent and cannot be installed (not root),
 the test is skipped and says which packages and command are missing.
 """
@@ -16,7 +17,13 @@ from pathlib import Path
 import pytest
 
 FIRMWARE = Path(__file__).resolve().parents[1] / "firmware"
-TOOLS = {"make": "make", "gcc": "gcc", "avr-gcc": "gcc-avr", "simavr": "simavr"}
+TOOLS = {
+    "make": "make",
+    "gcc": "gcc",
+    "avr-gcc": "gcc-avr",
+    "simavr": "simavr",
+    "arm-none-eabi-gcc": "gcc-arm-none-eabi",
+}
 HEADERS = {Path("/usr/include/simavr/sim_avr.h"): "libsimavr-dev"}
 
 
