@@ -66,6 +66,11 @@ def test_stm32_image_in_qemu_through_mcu_link(image: qemu_mcu.Path) -> None:
             ident = link.identity
             assert ident is not None
             assert (ident.board, ident.clock_hz, ident.proto_version) == (board_id, 168_000_000, spec.version)
+            reported = spec.boards[ident.board]
+            assert replace(SETTINGS, board="stm32f405").board_problem(reported) is None
+            assert "set mcu.board: stm32f405" in str(
+                replace(SETTINGS, board="atmega328p").board_problem(reported)
+            )
             assert await link.ping(timeout_s=5.0) > 0
 
             # 10 kHz: a state frame every control tick, answered by a PWM frame each

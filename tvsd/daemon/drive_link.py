@@ -5,14 +5,15 @@ opens the configured serial port; `sil` starts the drive model behind a virtual 
 (tvsd/sim/mcu_plant.py, paced at real time) and opens that pty. The daemon cannot tell them apart
 but for `inject` (SIL fault injection) and where the SIL scene puts the laser spot.
 
-Every state frame (cfg.mcu.state_rate_hz) hands the control thread the encoder angle, a speed over
+Every state frame (cfg.mcu.exchange_hz) hands the control thread the encoder angle, a speed over
 the last SPEED_WINDOW_S of frames, the frame's arrival time and its sampling instant on the host's
 clock (the law carries the angle forward from there). 2 ms: one frame apart, the 8192-count
 encoder would quantise 25 rev/s to 1.2 % (2 ms: 0.24 %, for 1 ms of delay, nothing against the
 drive's 2.4 s time constant). Then it sends the control thread's latest command as the PWM duty,
 and keeps what it sent (`sent_volts`: the command the motor really got, held between frames, for
 the point stream's drive model). So the exchange with the MCU runs at the state rate (2.5 kHz on
-the ATmega328P), one control tick (0.1 ms) behind at most, and the 10 kHz kernel never waits for it.
+the ATmega328P, 10 kHz on the STM32F405: cfg.mcu.board), one control tick (0.1 ms) behind at
+most, and the 10 kHz kernel never waits for it.
 
 Safety, in three layers: the control thread holds PWM 0 once the newest state frame is older than
 cfg.mcu.link_timeout_ms (40 ms: tvsd.control.runner, LoopFault.STALE); the link reports the loss
@@ -76,7 +77,7 @@ class DriveLink:
                     f"encoder has {sil_counts}: make them equal"
                 )
         self.rad_per_count = 2.0 * math.pi / m.encoder_counts_per_rev
-        self.state_div = max(1, min(40, round(CONTROL_TICK_HZ / m.state_rate_hz)))
+        self.state_div = max(1, min(40, round(CONTROL_TICK_HZ / m.exchange_hz)))
         self.duty_per_volt = 1.0 / cfg.drive.u_max_v
         n = max(2, round(SPEED_WINDOW_S * CONTROL_TICK_HZ / self.state_div) + 1)
         self._ticks = np.zeros(n, dtype=np.int64)  # ring of the last frames: MCU ticks, angle
@@ -123,6 +124,13 @@ class DriveLink:
             self._close_plant()
             raise
         assert link.identity is not None
+        reported = link.spec.boards.get(link.identity.board, f"unknown ({link.identity.board})")
+        problem = m.board_problem(reported, sil=self.backend == "sil")
+        if problem is not None:
+            self.link = None
+            await link.close()
+            self._close_plant()
+            raise DeviceError(problem)
         self.clock_hz = link.identity.clock_hz
         link.send_config(watchdog_ms=m.watchdog_ms, state_div=self.state_div, max_on_ms=0)
         self.runner.stale_after(m.link_timeout_ms * 1e-3)
@@ -236,7 +244,9 @@ class DriveLink:
             "source": self.backend,
             "state": "ok" if st.link_up else "lost",
             "port": self.link.settings.port,
-            "state_rate_hz": CONTROL_TICK_HZ / self.state_div,
+            "board": self.cfg.mcu.board,
+            "exchange_hz": CONTROL_TICK_HZ / self.state_div,  # state + PWM frames per second
+            "state_rate_hz": CONTROL_TICK_HZ / self.state_div,  # (its older name)
             "frames_rx": st.frames_rx,
             "lost_frames": st.lost_frames,
             "crc_errors": st.crc_errors,
