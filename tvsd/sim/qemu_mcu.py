@@ -89,6 +89,7 @@ class BoardLoad:
     ticks_run: int  # control ticks the main loop ran
     pwm_duty: int  # the duty the board last drove (-32767..32767)
     laser: bool
+    wakeups: int  # WFI exits (wraps at 2^32)
 
 
 def _die_with_parent() -> None:
@@ -150,12 +151,12 @@ class QemuMcu:
         """Read ``board_load`` through the monitor with the VM paused (one consistent snapshot)."""
         if self._load_addr is None:
             raise QemuMcuError(f"{self.elf} has no board_load symbol")
-        words = self._monitor(["stop", f"xp /5wx 0x{self._load_addr:08x}", "cont"])[1]
+        words = self._monitor(["stop", f"xp /6wx 0x{self._load_addr:08x}", "cont"])[1]
         vals = [int(v, 16) for v in re.findall(r"0x([0-9a-fA-F]{8})\b", words.split(":", 1)[1])]
-        if len(vals) != 5:
+        if len(vals) != 6:
             raise QemuMcuError(f"unexpected monitor answer: {words!r}")
         duty = vals[3] - (1 << 32) if vals[3] & 0x8000_0000 else vals[3]
-        return BoardLoad(vals[0], vals[1], vals[2], duty, bool(vals[4]))
+        return BoardLoad(vals[0], vals[1], vals[2], duty, bool(vals[4]), vals[5])
 
     def _monitor(self, commands: list[str]) -> list[str]:
         """Run HMP commands; each one's output."""

@@ -37,12 +37,17 @@ _Static_assert(BOARD_CLOCK_HZ == HCLK_HZ, "board_ticks() counts HCLK cycles");
 _Static_assert(SYSTICK_RELOAD * CORE_TICK_HZ == HCLK_HZ, "the control tick is whole cycles");
 
 volatile board_load_t board_load;
-volatile uint32_t board_tick_pending;
 static volatile uint32_t systick_base; /* board_ticks() at the last SysTick reload */
 static volatile int32_t encoder;       /* TIM8 extended to 32 bits */
 static uint16_t enc_last;
-static uint32_t tick_time;
-static int32_t tick_encoder;
+
+/* Control ticks due, each with its own time and encoder count: when the main loop runs late by
+ * a tick or more (a stepper_move's planning, a burst of frames), every tick still reports its
+ * own sample. Beyond TICK_QUEUE behind, ticks are dropped (the host sees a stamp gap). */
+#define TICK_QUEUE 8u
+static uint32_t tq_time[TICK_QUEUE];
+static int32_t tq_encoder[TICK_QUEUE];
+static volatile uint32_t tq_head, tq_tail;
 
 #define RX_RING 256u
 static uint8_t rx_buf[RX_RING];
@@ -197,17 +202,28 @@ void SysTick_Handler(void)
 {
     uint32_t t = systick_base + SYSTICK_RELOAD;
     systick_base = t;
-    tick_time = t;
-    tick_encoder = encoder_locked();
-    board_tick_pending++;
+    int32_t e = encoder_locked();
+    uint32_t h = tq_head;
+    if (h - tq_tail < TICK_QUEUE) {
+        tq_time[h % TICK_QUEUE] = t;
+        tq_encoder[h % TICK_QUEUE] = e;
+        __asm volatile("" ::: "memory"); /* the slot before the index that publishes it */
+        tq_head = h + 1u;
+    }
 }
 
-void board_tick_sample(uint32_t *t, int32_t *e)
+bool board_tick_pending(void) { return tq_head != tq_tail; }
+
+bool board_tick_pop(uint32_t *t, int32_t *e)
 {
-    uint32_t s = irq_disable_save();
-    *t = tick_time;
-    *e = tick_encoder;
-    irq_restore(s);
+    uint32_t tail = tq_tail;
+    if (tail == tq_head)
+        return false;
+    __asm volatile("" ::: "memory");
+    *t = tq_time[tail % TICK_QUEUE];
+    *e = tq_encoder[tail % TICK_QUEUE];
+    tq_tail = tail + 1u; /* the ISR writes a slot only once the tail has passed it */
+    return true;
 }
 
 /* --- host link -------------------------------------------------------------------------------- */

@@ -20,13 +20,9 @@ int main(void)
         uint8_t b;
         for (uint32_t i = 0; i < 64u && board_rx_pop(&b); i++)
             core_rx_byte(b);
-        if (board_tick_pending) {
-            __asm volatile("cpsid i" ::: "memory");
-            board_tick_pending--;
-            __asm volatile("cpsie i" ::: "memory");
-            uint32_t t;
-            int32_t enc;
-            board_tick_sample(&t, &enc);
+        uint32_t t;
+        int32_t enc;
+        if (board_tick_pop(&t, &enc)) {
             core_tick(t, enc);
             board_load.now = t;
             board_load.ticks_run++;
@@ -36,10 +32,11 @@ int main(void)
         /* Sleep until the next interrupt with interrupts masked: WFI still wakes on a pending
          * one, and the time asleep is read before its handler runs (handlers count as busy). */
         __asm volatile("cpsid i" ::: "memory");
-        if (!board_tick_pending && !board_rx_pending()) {
+        if (!board_tick_pending() && !board_rx_pending()) {
             uint32_t t0 = board_ticks();
             __asm volatile("dsb\n\twfi" ::: "memory");
             board_load.idle_ticks += board_ticks() - t0;
+            board_load.wakeups++;
         }
         __asm volatile("cpsie i" ::: "memory");
     }
