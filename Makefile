@@ -7,7 +7,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test lint pytest firmware-test system-deps bench clean
+.PHONY: run test lint pytest firmware-test firmware system-deps bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -38,6 +38,11 @@ pytest: $(STAMP)
 
 firmware-test: system-deps $(STAMP)
 	@if [ -f firmware/Makefile ]; then $(MAKE) -C firmware all test; fi
+
+# Release images of every MCU board (.elf/.hex/.bin in firmware/build/, size against each chip);
+# flashing: hil/README.md.
+firmware: system-deps $(STAMP)
+	$(MAKE) -C firmware firmware
 
 bench: $(STAMP)
 	$(BIN)/tvsctl bench

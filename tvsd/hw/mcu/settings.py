@@ -22,7 +22,7 @@ from tvsd.hw.mcu.spec import FRAME_OVERHEAD
 from tvsd.schema import FieldError, check, option
 
 HEARTBEATS_PER_WATCHDOG = 4
-# board -> state + PWM exchanges per second it carries (firmware/README.md, Boards)
+# board -> state + PWM exchanges per second it carries (firmware/board/stm32f405/README.md)
 BOARD_EXCHANGE_HZ = {"atmega328p": 2500.0, "stm32f405": 10000.0}
 # identify's board name of the SIL's virtual MCU (the core built for the host, firmware/board/host)
 SIL_BOARD = "host"
