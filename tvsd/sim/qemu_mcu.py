@@ -18,7 +18,6 @@ from __future__ import annotations
 import ctypes
 import os
 import re
-import select
 import shutil
 import signal
 import socket
@@ -92,9 +91,12 @@ class BoardLoad:
     wakeups: int  # WFI exits (wraps at 2^32)
 
 
+_prctl = ctypes.CDLL(None, use_errno=True).prctl  # resolved here: the child after fork only calls it
+
+
 def _die_with_parent() -> None:
-    libc = ctypes.CDLL(None, use_errno=True)
-    libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+    """In the child: killed when the thread that started it ends (start QEMU from a long-lived one)."""
+    _prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
 
 
 class QemuMcu:
@@ -107,6 +109,7 @@ class QemuMcu:
         self._proc: subprocess.Popen[bytes] | None = None
         self._dir = tempfile.TemporaryDirectory(prefix="tvsd-qemu-")
         self._monitor_path = os.path.join(self._dir.name, "monitor.sock")
+        self._log_path = os.path.join(self._dir.name, "qemu.log")  # a file: a pipe nobody reads fills
         self._load_addr: int | None = None
 
     def start(self) -> str:
@@ -121,16 +124,15 @@ class QemuMcu:
         cmd += ["-monitor", f"unix:{self._monitor_path},server=on,wait=off"]
         if self.icount:
             cmd += ["-icount", "shift=0,sleep=on"]
-        self._proc = subprocess.Popen(
-            cmd,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            preexec_fn=_die_with_parent,  # prctl must run in the child
-            start_new_session=True,
-        )
-        assert self._proc.stdout is not None
-        fd = self._proc.stdout.fileno()
+        with open(self._log_path, "wb") as log:
+            self._proc = subprocess.Popen(
+                cmd,
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                preexec_fn=_die_with_parent,  # prctl must run in the child
+                start_new_session=True,
+            )
         seen = b""
         deadline = time.monotonic() + START_TIMEOUT_S
         while not (self.port and os.path.exists(self._monitor_path)):
@@ -139,12 +141,12 @@ class QemuMcu:
                 self.close()
                 said = seen.decode(errors="replace")[-500:]
                 raise QemuMcuError(f"{QEMU} did not start the board within {START_TIMEOUT_S:g} s: {said}")
-            if select.select([fd], [], [], min(left, 0.05))[0]:
-                chunk = os.read(fd, 4096)
-                seen += chunk
-                m = _PTY_LINE.search(seen)
-                if m:
-                    self.port = m.group(1).decode()
+            time.sleep(min(left, 0.02))
+            with open(self._log_path, "rb") as log:
+                seen = log.read()
+            m = _PTY_LINE.search(seen)
+            if m:
+                self.port = m.group(1).decode()
         return self.port
 
     def load(self) -> BoardLoad:
@@ -194,8 +196,6 @@ class QemuMcu:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
-        if proc is not None and proc.stdout is not None:
-            proc.stdout.close()
         self._dir.cleanup()
 
     @property
