@@ -403,7 +403,7 @@ void board_start(void)
     IWDG_PR = 0;
     IWDG_RLR = 240u;
     IWDG_KR = 0xCCCCu;
-    __asm volatile("cpsie i" ::: "memory");
+    irq_restore(0);
 }
 
 void board_watchdog_kick(void) { IWDG_KR = 0xAAAAu; }

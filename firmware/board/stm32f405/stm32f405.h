@@ -115,6 +115,7 @@ typedef struct {
 #define IRQ_USART1 37u
 #define IRQ_COUNT 82u
 
+#if defined(__arm__)
 static inline uint32_t irq_disable_save(void)
 {
     uint32_t primask;
@@ -126,5 +127,17 @@ static inline void irq_restore(uint32_t primask)
 {
     __asm volatile("msr primask, %0" ::"r"(primask) : "memory");
 }
+#else
+/* Host unit tests (tests/test_stm32_board.c): the register blocks are memory mapped at their
+ * addresses, PRIMASK is a variable. */
+extern uint32_t host_primask;
+static inline uint32_t irq_disable_save(void)
+{
+    uint32_t p = host_primask;
+    host_primask = 1u;
+    return p;
+}
+static inline void irq_restore(uint32_t primask) { host_primask = primask; }
+#endif
 
 #endif
