@@ -39,7 +39,7 @@ from tvsd.hw.mcu.spec import CONTROL_TICK_HZ
 from tvsd.hw.mcu.steppers import Steppers
 
 SPEED_WINDOW_S = 2e-3
-SENT_HISTORY = 2048  # PWM frames kept: 0.8 s at 2.5 kHz (the point stream looks back < 0.5 s)
+SENT_HISTORY_S = 0.8  # PWM frames kept, in s of exchanges (the point stream looks back < 0.5 s)
 SIL_TARGET_RANGE_M = 2.0  # the SIL scene: a surface 2 m from the PL (tvsd/sim/scene.py)
 SIL_FAULTS = ("link_loss", "link_restore")
 
@@ -83,8 +83,9 @@ class DriveLink:
         self._ticks = np.zeros(n, dtype=np.int64)  # ring of the last frames: MCU ticks, angle
         self._phi = np.zeros(n)
         self._frames = 0
-        self._sent_host = np.zeros(SENT_HISTORY)  # ring of the PWM frames sent: host time, volts
-        self._sent_volts = np.zeros(SENT_HISTORY)
+        self._sent_n = math.ceil(SENT_HISTORY_S * CONTROL_TICK_HZ / self.state_div)  # 8000 at 10 kHz
+        self._sent_host = np.zeros(self._sent_n)  # ring of the PWM frames sent: host time, volts
+        self._sent_volts = np.zeros(self._sent_n)
         self._sent = 0
         self.clock_hz = 16_000_000
         self.plant: Any = None  # tvsd.sim.mcu_plant.McuPlant in SIL
@@ -171,7 +172,7 @@ class DriveLink:
         if self.link is not None:
             duty = max(-1.0, min(1.0, self.runner.command * self.duty_per_volt))
             if self.link.send_pwm(duty):
-                i = self._sent % SENT_HISTORY
+                i = self._sent % self._sent_n
                 self._sent_host[i], self._sent_volts[i] = time.monotonic(), duty / self.duty_per_volt
                 self._sent += 1
 
@@ -179,11 +180,11 @@ class DriveLink:
         """The motor voltage commanded at MCU times: each PWM frame's from when it was sent (its
         ~0.1 ms on the line and in the MCU's parser not counted) until the next; 0 before the
         first kept, and before the clock sync."""
-        n = min(self._sent, SENT_HISTORY)
+        n = min(self._sent, self._sent_n)
         out = np.zeros(len(t_mcu))
         if n == 0:
             return out
-        idx = np.arange(self._sent - n, self._sent) % SENT_HISTORY
+        idx = np.arange(self._sent - n, self._sent) % self._sent_n
         host, volts = self._sent_host[idx], self._sent_volts[idx]
         m0, m1 = self.to_mcu_s(float(host[0])), self.to_mcu_s(float(host[-1]))
         if not (math.isfinite(m0) and math.isfinite(m1)):
