@@ -7,7 +7,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test lint pytest firmware-test host-lib system-deps bench clean
+.PHONY: run test lint pytest firmware-test firmware host-lib system-deps bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -43,6 +43,11 @@ host-lib: $(STAMP)
 
 firmware-test: system-deps $(STAMP)
 	@if [ -f firmware/Makefile ]; then $(MAKE) -C firmware all test; fi
+
+# Release images of every MCU board (.elf/.hex/.bin in firmware/build/, size against each chip);
+# flashing: hil/README.md.
+firmware: system-deps $(STAMP)
+	$(MAKE) -C firmware firmware
 
 bench: $(STAMP)
 	$(BIN)/tvsctl bench

@@ -1,7 +1,9 @@
 """The firmware's own checks, from pytest: `make -C firmware all test`.
 
-That builds the ATmega328P image (and fails if it outgrows flash or RAM), runs the core's C unit
-tests on the host, and runs the image in simavr (identify handshake, fail-safe timing, load).
+That builds the ATmega328P and STM32F405 images (and fails if one outgrows its flash or RAM),
+runs the core's C unit tests and the STM32 board layer's register-level tests on the host, and
+runs the AVR image in simavr (identify handshake, fail-safe timing, load);
+tests/test_mcu_stm32.py runs the STM32 image in QEMU.
 The top Makefile installs the toolchain; where it is absent and cannot be installed (not root),
 the test is skipped and says which packages and command are missing.
 """
@@ -16,7 +18,13 @@ from pathlib import Path
 import pytest
 
 FIRMWARE = Path(__file__).resolve().parents[1] / "firmware"
-TOOLS = {"make": "make", "gcc": "gcc", "avr-gcc": "gcc-avr", "simavr": "simavr"}
+TOOLS = {
+    "make": "make",
+    "gcc": "gcc",
+    "avr-gcc": "gcc-avr",
+    "simavr": "simavr",
+    "arm-none-eabi-gcc": "gcc-arm-none-eabi",
+}
 HEADERS = {Path("/usr/include/simavr/sim_avr.h"): "libsimavr-dev"}
 
 
@@ -44,3 +52,4 @@ def test_firmware_builds_and_passes() -> None:
     assert proc.returncode == 0, f"make -C firmware all test failed:\n{out[-4000:]}"
     assert "0 failed" in out, "the C unit tests did not report"
     assert "simavr smoke: 0 failure(s)" in out, "the simavr smoke test did not report"
+    assert "stm32 board tests:" in out and out.count(" 0 failed") >= 2, "the STM32 board tests did not report"

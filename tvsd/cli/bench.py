@@ -51,6 +51,12 @@ def _mcu_sil() -> dict[str, Any]:
     return bench_clock_sync()
 
 
+def _mcu_stm32() -> dict[str, Any]:
+    from tvsd.sim.stm32_bench import bench_stm32
+
+    return bench_stm32()
+
+
 def _doctor() -> dict[str, Any]:
     from tvsd.analysis.bench import bench_analyze
 
@@ -70,6 +76,7 @@ BENCHES: dict[str, Callable[[], dict[str, Any]]] = {
     "imu": _imu,
     "mcu": _mcu,
     "mcu_sil": _mcu_sil,
+    "mcu_stm32": _mcu_stm32,
     "doctor": _doctor,
     "loop": _loop,
     "api": _api,

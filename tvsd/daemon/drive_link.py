@@ -5,14 +5,15 @@ opens the configured serial port; `sil` starts the drive model behind a virtual 
 (tvsd/sim/mcu_plant.py, paced at real time) and opens that pty. The daemon cannot tell them apart
 but for `inject` (SIL fault injection) and where the SIL scene puts the laser spot.
 
-Every state frame (cfg.mcu.state_rate_hz) hands the control thread the encoder angle, a speed over
+Every state frame (cfg.mcu.exchange_hz) hands the control thread the encoder angle, a speed over
 the last SPEED_WINDOW_S of frames, the frame's arrival time and its sampling instant on the host's
 clock (the law carries the angle forward from there). 2 ms: one frame apart, the 8192-count
 encoder would quantise 25 rev/s to 1.2 % (2 ms: 0.24 %, for 1 ms of delay, nothing against the
 drive's 2.4 s time constant). Then it sends the control thread's latest command as the PWM duty,
 and keeps what it sent (`sent_volts`: the command the motor really got, held between frames, for
 the point stream's drive model). So the exchange with the MCU runs at the state rate (2.5 kHz on
-the ATmega328P), one control tick (0.1 ms) behind at most, and the 10 kHz kernel never waits for it.
+the ATmega328P, 10 kHz on the STM32F405: cfg.mcu.board), one control tick (0.1 ms) behind at
+most, and the 10 kHz kernel never waits for it.
 
 Safety, in three layers: the control thread holds PWM 0 once the newest state frame is older than
 cfg.mcu.link_timeout_ms (40 ms: tvsd.control.runner, LoopFault.STALE); the link reports the loss
@@ -38,7 +39,7 @@ from tvsd.hw.mcu.spec import CONTROL_TICK_HZ
 from tvsd.hw.mcu.steppers import Steppers
 
 SPEED_WINDOW_S = 2e-3
-SENT_HISTORY = 2048  # PWM frames kept: 0.8 s at 2.5 kHz (the point stream looks back < 0.5 s)
+SENT_HISTORY_S = 0.8  # PWM frames kept, in s of exchanges (the point stream looks back < 0.5 s)
 SIL_TARGET_RANGE_M = 2.0  # the SIL scene: a surface 2 m from the PL (tvsd/sim/scene.py)
 SIL_FAULTS = ("link_loss", "link_restore")
 
@@ -76,14 +77,15 @@ class DriveLink:
                     f"encoder has {sil_counts}: make them equal"
                 )
         self.rad_per_count = 2.0 * math.pi / m.encoder_counts_per_rev
-        self.state_div = max(1, min(40, round(CONTROL_TICK_HZ / m.state_rate_hz)))
+        self.state_div = max(1, min(40, round(CONTROL_TICK_HZ / m.exchange_hz)))
         self.duty_per_volt = 1.0 / cfg.drive.u_max_v
         n = max(2, round(SPEED_WINDOW_S * CONTROL_TICK_HZ / self.state_div) + 1)
         self._ticks = np.zeros(n, dtype=np.int64)  # ring of the last frames: MCU ticks, angle
         self._phi = np.zeros(n)
         self._frames = 0
-        self._sent_host = np.zeros(SENT_HISTORY)  # ring of the PWM frames sent: host time, volts
-        self._sent_volts = np.zeros(SENT_HISTORY)
+        self._sent_n = math.ceil(SENT_HISTORY_S * CONTROL_TICK_HZ / self.state_div)  # 8000 at 10 kHz
+        self._sent_host = np.zeros(self._sent_n)  # ring of the PWM frames sent: host time, volts
+        self._sent_volts = np.zeros(self._sent_n)
         self._sent = 0
         self.clock_hz = 16_000_000
         self.plant: Any = None  # tvsd.sim.mcu_plant.McuPlant in SIL
@@ -123,6 +125,13 @@ class DriveLink:
             self._close_plant()
             raise
         assert link.identity is not None
+        reported = link.spec.boards.get(link.identity.board, f"unknown ({link.identity.board})")
+        problem = m.board_problem(reported, sil=self.backend == "sil")
+        if problem is not None:
+            self.link = None
+            await link.close()
+            self._close_plant()
+            raise DeviceError(problem)
         self.clock_hz = link.identity.clock_hz
         link.send_config(watchdog_ms=m.watchdog_ms, state_div=self.state_div, max_on_ms=0)
         self.runner.stale_after(m.link_timeout_ms * 1e-3)
@@ -163,7 +172,7 @@ class DriveLink:
         if self.link is not None:
             duty = max(-1.0, min(1.0, self.runner.command * self.duty_per_volt))
             if self.link.send_pwm(duty):
-                i = self._sent % SENT_HISTORY
+                i = self._sent % self._sent_n
                 self._sent_host[i], self._sent_volts[i] = time.monotonic(), duty / self.duty_per_volt
                 self._sent += 1
 
@@ -171,11 +180,11 @@ class DriveLink:
         """The motor voltage commanded at MCU times: each PWM frame's from when it was sent (its
         ~0.1 ms on the line and in the MCU's parser not counted) until the next; 0 before the
         first kept, and before the clock sync."""
-        n = min(self._sent, SENT_HISTORY)
+        n = min(self._sent, self._sent_n)
         out = np.zeros(len(t_mcu))
         if n == 0:
             return out
-        idx = np.arange(self._sent - n, self._sent) % SENT_HISTORY
+        idx = np.arange(self._sent - n, self._sent) % self._sent_n
         host, volts = self._sent_host[idx], self._sent_volts[idx]
         m0, m1 = self.to_mcu_s(float(host[0])), self.to_mcu_s(float(host[-1]))
         if not (math.isfinite(m0) and math.isfinite(m1)):
@@ -236,7 +245,9 @@ class DriveLink:
             "source": self.backend,
             "state": "ok" if st.link_up else "lost",
             "port": self.link.settings.port,
-            "state_rate_hz": CONTROL_TICK_HZ / self.state_div,
+            "board": self.cfg.mcu.board,
+            "exchange_hz": CONTROL_TICK_HZ / self.state_div,  # state + PWM frames per second
+            "state_rate_hz": CONTROL_TICK_HZ / self.state_div,  # (its older name)
             "frames_rx": st.frames_rx,
             "lost_frames": st.lost_frames,
             "crc_errors": st.crc_errors,

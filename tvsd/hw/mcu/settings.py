@@ -5,6 +5,11 @@ PWM 0 once the newest state frame is `link_timeout_ms` old; the link reports the
 `link_lost_ms` without any frame; the firmware cuts PWM and laser `watchdog_ms` after the last
 heartbeat (heartbeats go every watchdog_ms / 4, so an event-loop stall shorter than three
 quarters of it is harmless).
+
+`board` names the MCU board (firmware/board/<name>): identify must report it, and it sets how
+many state + PWM exchanges per second the daemon runs (`exchange_hz`): what each board carries
+with room to spare (ATmega328P 2 kHz at 80 % CPU in simavr with protocol v2's CRC-32 — 2.5 kHz
+would be 92 %, `make -C firmware test`; STM32F405 10 kHz, `make -C firmware bench-stm32`). `state_rate_hz` overrides it, up to the board's rate.
 """
 
 from __future__ import annotations
@@ -17,14 +22,23 @@ from tvsd.hw.mcu.spec import FRAME_OVERHEAD
 from tvsd.schema import FieldError, check, option
 
 HEARTBEATS_PER_WATCHDOG = 4
+# board -> state + PWM exchanges per second it carries (firmware/board/stm32f405/README.md)
+BOARD_EXCHANGE_HZ = {"atmega328p": 2000.0, "stm32f405": 10000.0}
+# identify's board name of the SIL's virtual MCU (the core built for the host, firmware/board/host)
+SIL_BOARD = "host"
 
 
 @dataclass(frozen=True, kw_only=True)
 class McuSettings:
     port: str = option("/dev/serial0", doc="serial port of the MCU")
     baud: int = option(2_000_000, doc="line rate; the firmware's", unit="bit/s", ge=9600)
-    state_rate_hz: float = option(
-        2500.0, doc="state frames per second: the ATmega328P carries 2.5 kHz", unit="Hz", ge=100, le=10000
+    board: str = option(
+        "atmega328p",
+        doc="the MCU board: identify must report it; its exchange rate (ATmega 2.5 kHz, STM32 10 kHz)",
+        choices=tuple(BOARD_EXCHANGE_HZ),
+    )
+    state_rate_hz: float | None = option(
+        None, doc="state + PWM exchanges per second; default: the board's", unit="Hz", ge=100, le=10000
     )
     encoder_counts_per_rev: int = option(8192, doc="encoder counts per shaft revolution (×4)", ge=4)
     watchdog_ms: int = option(
@@ -51,12 +65,34 @@ class McuSettings:
 
     def __post_init__(self) -> None:
         check(self)
+        board_hz = BOARD_EXCHANGE_HZ[self.board]
+        if self.state_rate_hz is not None and self.state_rate_hz > board_hz:
+            raise FieldError(
+                "state_rate_hz",
+                f"the {self.board} carries at most {board_hz:g} exchanges/s, got {self.state_rate_hz:g}: "
+                "lower it, or set mcu.board to the board you have",
+            )
         if self.link_timeout_ms > self.link_lost_ms:
             raise FieldError(
                 "link_timeout_ms",
                 f"must be at most link_lost_ms ({self.link_lost_ms:g} ms), got {self.link_timeout_ms:g}: "
                 "the control thread holds PWM 0 before the link reports the loss",
             )
+
+    @property
+    def exchange_hz(self) -> float:
+        """State + PWM exchanges per second: state_rate_hz, else the board's rate."""
+        return self.state_rate_hz if self.state_rate_hz is not None else BOARD_EXCHANGE_HZ[self.board]
+
+    def board_problem(self, reported: str, sil: bool = False) -> str | None:
+        """None if identify's board name is the configured one (or, in SIL, the virtual MCU's);
+        else one line: what was seen and the fix."""
+        if reported == self.board or (sil and reported == SIL_BOARD):
+            return None
+        return (
+            f"the MCU on {self.port} reports board {reported} but mcu.board is {self.board}: set "
+            f"mcu.board: {reported} in the config, or flash the {self.board} image (hil/README.md)"
+        )
 
     @property
     def heartbeat_period_s(self) -> float:

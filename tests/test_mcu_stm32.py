@@ -1,0 +1,165 @@
+"""The STM32F405 image (firmware/board/stm32f405) in QEMU, driven by the real McuLink over a pty.
+
+The image is the one `make -C firmware stm32` builds with arm-none-eabi-gcc; QEMU's netduinoplus2
+is an STM32F405 with USART1 on a pseudo-terminal. What the board drives onto the PWM and laser
+pins is read through the QEMU monitor (QEMU models neither TIM1 nor the GPIOs). QEMU runs with
+`-icount shift=0`: the guest's time follows its instruction count, so no SysTick is lost when this
+shared machine is slow (the guest then runs slower than real time, which the checks allow: they
+are in the MCU's own ticks, or waits bounded in host seconds with a wide margin for the load).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+from dataclasses import replace
+
+import pytest
+from conftest import until
+
+from tvsd.config import load_config
+from tvsd.daemon.drive_link import DriveLink
+from tvsd.errors import DeviceError
+from tvsd.hw.mcu.link import McuLink, StateSample
+from tvsd.hw.mcu.settings import McuSettings
+from tvsd.hw.mcu.spec import load_spec
+from tvsd.sim import qemu_mcu
+
+pytestmark = pytest.mark.slow
+
+# QEMU's pty backend notices the host side being opened by a 1 s poll, and this machine is shared:
+# identify gets 3 tries over 6 s. Heartbeats every 25 ms against a 100 ms watchdog: the guest
+# runs at ~0.2x real time here, so that is ~20 ms of the board's time.
+SETTINGS = replace(
+    McuSettings(), watchdog_ms=100, identify_timeout_ms=6000, link_timeout_ms=500, link_lost_ms=2000
+)
+TICKS_PER_CONTROL_TICK = qemu_mcu.CLOCK_HZ // 10_000
+
+
+@pytest.fixture(scope="module")
+def image() -> qemu_mcu.Path:
+    missing = qemu_mcu.missing_tools()
+    if missing:
+        pytest.skip(f"STM32 toolchain/emulator missing: {' '.join(missing)}; fix: make system-deps")
+    return qemu_mcu.build_image()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def test_stm32_image_in_qemu_through_mcu_link(image: qemu_mcu.Path) -> None:
+    spec = load_spec(None)
+    board_id = {v: k for k, v in spec.boards.items()}["stm32f405"]
+    states: list[StateSample] = []
+
+    async def run(q: qemu_mcu.QemuMcu) -> None:
+        duty = 0.25
+        want = round(duty * 32767)
+        # QEMU feeds the pty's bytes to the USART one main-loop turn each, far below 2 Mbaud on a
+        # loaded host: the exchange answers a bounded number of states, or a backlog of pwm_sets
+        # would hold up every later frame.
+        answers = 0
+
+        def exchange(s: StateSample) -> None:  # the daemon's exchange: a PWM frame per state
+            nonlocal answers
+            states.append(s)
+            if answers > 0:
+                answers -= 1
+                link.send_pwm(duty)
+
+        async def drained() -> None:  # a round trip: what was sent before it has been handled
+            try:
+                await link.ping(timeout_s=60.0)
+            except DeviceError as exc:
+                raise AssertionError(f"{exc}; link {link.stats()}, board {q.load()}") from exc
+
+        link = McuLink(replace(SETTINGS, port=q.port), on_state=exchange)
+        async with link:
+            ident = link.identity
+            assert ident is not None
+            assert (ident.board, ident.clock_hz, ident.proto_version) == (board_id, 168_000_000, spec.version)
+            reported = spec.boards[ident.board]
+            assert replace(SETTINGS, board="stm32f405").board_problem(reported) is None
+            assert "set mcu.board: stm32f405" in str(
+                replace(SETTINGS, board="atmega328p").board_problem(reported)
+            )
+            await drained()
+
+            # 10 kHz: a state frame every control tick, the first 500 answered by a PWM frame each
+            answers = 500
+            link.send_config(watchdog_ms=SETTINGS.watchdog_ms, state_div=1, max_on_ms=0)
+            await until(lambda: len(states), 60, "state frames", ok=lambda n: n >= 3000, interval=0.05)
+            # the stamps as sent, modulo the 16 bits protocol v1 carries (the host's v1 placement
+            # slack is sized for 16 MHz ticks; v2 carries 32 bits)
+            periods = {
+                (b.mcu_ticks - a.mcu_ticks) % 65536
+                for a, b in zip(states[-2000:], states[-1999:], strict=False)
+            }
+            assert periods == {TICKS_PER_CONTROL_TICK}, f"state periods (ticks) {sorted(periods)[:10]}"
+            await drained()
+            assert q.load().pwm_duty == want
+            mcu = await link.request_stats(timeout_s=30.0)
+            assert mcu.rx_frames >= 500 and mcu.crc_errors == 0, mcu
+            st = link.stats()
+            assert st.crc_errors == 0 and st.lost_frames == 0 and st.nacks == 0, (st, list(link.refusals))
+            link.send_laser(True)
+            await drained()
+            assert q.load().laser
+
+            # heartbeats stop: the board's watchdog cuts PWM and laser and says so
+            await link.stop_heartbeat()
+            await until(
+                lambda: list(link.faults),
+                30,
+                "watchdog_expired",
+                ok=lambda f: f and f[-1].name == "watchdog_expired",
+            )
+            assert link.faults[-1].detail == SETTINGS.watchdog_ms
+            cut = q.load()
+            assert (cut.pwm_duty, cut.laser) == (0, False)
+            # and refuses PWM until a heartbeat arms it again
+            link.send_pwm(duty)
+            await until(
+                lambda: list(link.refusals),
+                30,
+                "a refused pwm_set",
+                ok=lambda r: r and r[-1].name == "pwm_set",
+            )
+            assert "heartbeat" in link.refusals[-1].reason
+            assert q.load().pwm_duty == 0
+            await drained()  # arms it
+            link.start_heartbeat()
+            link.send_pwm(duty)
+            link.send_config(watchdog_ms=SETTINGS.watchdog_ms, state_div=0, max_on_ms=0)
+            await drained()
+            assert q.load().pwm_duty == want
+
+        # the daemon's drive link refuses this board when the config names the ATmega
+        cfg = load_config()
+        cfg = replace(cfg, mcu=replace(cfg.mcu, port=q.port, board="atmega328p", identify_timeout_ms=6000))
+        drive = DriveLink(cfg, None, "hardware", on_pulse=print, on_link=print, on_fault=print)  # type: ignore[arg-type]
+        with pytest.raises(
+            DeviceError, match=r"reports board stm32f405 but mcu\.board is atmega328p: set mcu\.board"
+        ):
+            await drive.start(0.0, 0.0)
+        assert drive.link is None
+
+    q = qemu_mcu.QemuMcu(image, icount=True)
+    q.start()
+    pid = q.pid
+    assert pid is not None
+    try:
+        asyncio.run(run(q))
+    finally:
+        q.close()
+    assert not _alive(pid), "QEMU outlived the test"
+
+
+def test_missing_image_is_one_clear_error(tmp_path: qemu_mcu.Path) -> None:
+    with pytest.raises(qemu_mcu.QemuMcuError, match="no firmware image"):
+        qemu_mcu.QemuMcu(tmp_path / "none.elf").start()
