@@ -196,10 +196,10 @@ class DaemonSettings:
     rpc_max_batch: int = option(50, doc="requests in one batch line", ge=1, le=1000)
     rpc_max_reply_bytes: int = option(1 << 20, doc="one reply line", unit="bytes", ge=4096, le=1 << 28)
     rpc_rate_per_s: float = option(
-        200.0, doc="requests per second per connection (faster clients are slowed)", gt=0, le=1e6
+        50.0, doc="requests per second per connection (faster clients are slowed)", gt=0, le=1e6
     )
     rpc_burst: int = option(
-        100, doc="requests at once before the rate applies (≥ rpc_max_batch)", ge=1, le=100000
+        50, doc="requests at once before the rate applies (≥ rpc_max_batch)", ge=1, le=100000
     )
     rpc_max_concurrent: int = option(8, doc="a batch's requests in flight at once", ge=1, le=1000)
     rpc_max_clients: int = option(64, doc="connections at once", ge=1, le=10000)
