@@ -370,8 +370,9 @@ class Daemon:
         self.mark("state", state=str(new), was=str(old))
 
     def mark(self, event: str, **data: Any) -> None:
-        if self.recording is not None:
-            self.recording.mark(event, **data)
+        if self.recording is not None:  # t_loop: on the control ticks' clock, placed by export
+            t_loop = (time.monotonic_ns() - self.runner.start_ns) / 1e9
+            self.recording.mark(event, t_loop=t_loop, **data)
 
     def _fault(
         self, kind: FaultKind, cause: str, action: str, safe_after_ms: float | None = None
