@@ -75,7 +75,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         from dataclasses import replace
 
         # the twins' calibration lives with the SIL data: a board's file must not apply to them
-        imu = replace(cfg.imu, calibration_file=args.data_dir / "imu-calibration-sil.json")
+        from tvsd.hw.imu_calibration import SIL_FILE_NAME
+
+        imu = replace(cfg.imu, calibration_file=args.data_dir / SIL_FILE_NAME)
         cfg = replace(cfg, devices=replace(cfg.devices, mcu="sil", imu="sil"), imu=imu)
     config_path = args.config or config_dir() / "tvsd.yaml"
     for folder, option in ((args.data_dir, "--data-dir"), (args.socket.parent, "--socket")):
