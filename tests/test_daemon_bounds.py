@@ -11,6 +11,7 @@ No timing is asserted: waits are bounded generously and only outcomes are checke
 
 from __future__ import annotations
 
+import contextlib
 import json
 import socket
 import subprocess
@@ -226,3 +227,32 @@ def test_imu_calibration_succeeds_at_rest_in_sil(client: Client, sil: tuple[Path
     assert "result" in reply, reply
     assert reply["result"]["file"] == str(sil[1] / SIL_FILE_NAME)
     assert (sil[1] / SIL_FILE_NAME).is_file()
+
+
+def test_the_status_carries_only_the_newest_faults(client: Client) -> None:
+    """Before: every listed fault rode in every status (1.7 → 45 KB in 3 min of watchdog faults).
+    Now the newest daemon.status_faults (10); faults_list has the ring (200), fault_counts all."""
+    client.call("faults_clear")
+
+    def imu_faults() -> int:
+        return int(client.call("status")["result"]["fault_counts"].get("imu", 0))
+
+    def imu_state() -> str:
+        return str(client.call("status")["result"]["imu"]["state"])
+
+    listed: list[dict] = []
+    for _ in range(30):  # a fault per change of state: back to ok before each loss
+        if len(listed) >= 12:
+            break
+        wait_for(imu_state, 30.0, "the IMUs ok", ok=lambda st: st == "ok")
+        before = imu_faults()
+        assert "result" in client.call("inject_fault", device="imu", fault="loss")
+        with contextlib.suppress(AssertionError):  # a loss the loaded machine hid: one more round
+            wait_for(imu_faults, 10.0, "an IMU loss fault", ok=lambda n, b=before: n > b)
+        client.call("inject_fault", device="imu", fault="restore")
+        listed = client.call("faults_list")["result"]
+    s = client.call("status")["result"]
+    listed = client.call("faults_list")["result"]
+    assert len(listed) >= 12 and len(s["faults"]) == 10
+    assert all(f in listed for f in s["faults"])  # the newest (a fault may land between the calls)
+    assert s["faults"][0]["t_unix"] >= listed[-11]["t_unix"]
