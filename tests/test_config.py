@@ -202,3 +202,124 @@ def test_the_daemons_times_and_limits_come_from_the_config(tmp_path):
         ConfigError, match=re.escape("mcu.link_timeout_ms: must be at most link_lost_ms (50 ms)")
     ):
         load_config(_write(tmp_path, data))
+
+
+# --- issue 13 item 5: hostile and unusual files through `tvsd --check` ------------------------------
+
+
+def _check(path: Path, capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
+    """`tvsd --check --config path` in process: its exit status and its stderr lines."""
+    from tvsd.daemon.main import main
+
+    status = main(["--check", "--config", str(path)])
+    return status, capsys.readouterr().err.strip().splitlines()
+
+
+def _shipped_text() -> str:
+    return (config_dir() / "tvsd.yaml").read_text()
+
+
+@pytest.mark.parametrize(
+    "edit,needle",
+    [
+        (
+            lambda t: t.replace("  kv: 2.0e-5", "  kv: 2.0e-5\n  kv: 3.0e-5"),
+            "duplicate key 'kv' (first at line",
+        ),
+        (
+            lambda t: t.replace("  kb: 8.526e-3", "  kb: 18446744073709551616"),
+            "plant.kb: must be at most 100",
+        ),
+        (lambda t: t.replace("  kb: 8.526e-3", "  kb: " + "9" * 400), "plant.kb: must be within ±1e+12"),
+        (lambda t: t.replace("  kb: 8.526e-3", "  kb: " + "9" * 5000), "a value YAML cannot read"),
+        (lambda t: t + "x: " + "[" * 1000 + "]" * 1000 + "\n", "nested more than 16 levels"),
+        (lambda t: t + "".join(" " * i + f"k{i}:\n" for i in range(1000)), "nested more than 16 levels"),
+        (lambda t: t.replace("sil_profile: sil.yaml", "sil_profile: " + "a" * 300), "(300 characters)"),
+        (lambda t: t.replace("    Gp: 3.78", "    Gp: 1e30"), "control.gains.Gp: must be at most 10000 V"),
+    ],
+)
+def test_hostile_files_get_one_line_with_file_and_line_and_exit_2(tmp_path, capsys, edit, needle):
+    """Each of these passed --check, or crashed it with a traceback, before issue 13."""
+    path = _write(tmp_path, None)
+    path.write_text(edit(_shipped_text()))
+    status, lines = _check(path, capsys)
+    assert status == 2, lines
+    assert len(lines) == 1, lines
+    assert re.match(rf"^tvsd: {re.escape(str(path))}(:\d+)?: ", lines[0]), lines
+    assert needle in lines[0], lines
+
+
+def test_the_error_names_the_line_of_the_duplicate(tmp_path, capsys):
+    text = _shipped_text().replace("  kv: 2.0e-5", "  kv: 2.0e-5\n  kv: 3.0e-5")
+    path = _write(tmp_path, None)
+    path.write_text(text)
+    line = [n for n, ln in enumerate(text.splitlines(), 1) if ln.startswith("  kv: ")][1]
+    assert f"tvsd.yaml:{line}: " in _check(path, capsys)[1][0]
+
+
+@pytest.mark.parametrize(
+    "spelling", ["6e-5", "6E-5", "6.0e-5", "0.00006", "6e-05", "+6e-5", "60e-6", "6.e-5"]
+)
+def test_numbers_in_any_yaml_spelling_are_numbers(tmp_path, spelling):
+    """YAML 1.1 (PyYAML) reads 6e-5 as a string; YAML 1.2 and every user read a number."""
+    path = _write(tmp_path, None)
+    path.write_text(_shipped_text().replace("  J: 6.378e-5", f"  J: {spelling}"))
+    assert pytest.approx(6e-5, rel=1e-12) == load_config(path).plant.J
+
+
+NASTY = st.one_of(
+    st.integers(-(2**80), 2**80),
+    st.integers(10**15, 10**400),
+    st.floats(allow_nan=False, min_value=1e12, max_value=1e308),
+    st.sampled_from(["6e-5", "1E3", "-2e+2", ".5e1", "1_000", "0x1F", ".inf", "-.inf", ".nan", "~", "1e999"]),
+    st.text(min_size=200, max_size=400),
+)
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    leaf=st.sampled_from(LEAVES),
+    value=NASTY,
+    dup=st.booleans(),
+    depth=st.sampled_from([0, 0, 20, 200]),
+)
+def test_fuzzed_files_are_accepted_or_refused_in_one_line_with_exit_2(tmp_path, leaf, value, dup, depth):
+    """Huge and odd numbers, long text, a duplicated section and deep nesting: `tvsd --check`
+    either accepts the file (exit 0) or says why in one line naming the file (exit 2); never a
+    traceback."""
+    import contextlib
+    import io
+
+    from tvsd.daemon.main import main
+
+    data = copy.deepcopy(_base())
+    node = data
+    for key in leaf[:-1]:
+        node = node[key]
+    node[leaf[-1]] = "@VALUE@"
+    text = yaml.safe_dump(data, sort_keys=False)
+    text = text.replace(
+        "'@VALUE@'", value if isinstance(value, str) and value.isascii() else json_dump(value)
+    )
+    if dup:
+        text += "geometry:\n  baseline_m: 0.5\n"
+    if depth:
+        text += "deep: " + "[" * depth + "]" * depth + "\n"
+    path = _write(tmp_path, None)
+    path.write_text(text)
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        status = main(["--check", "--config", str(path)])
+    lines = err.getvalue().strip().splitlines()
+    if status == 0:
+        assert not dup and not depth
+        return
+    assert status == 2, lines
+    assert len(lines) == 1 and lines[0].startswith(f"tvsd: {path}"), lines
+
+
+def json_dump(value: object) -> str:
+    """A YAML scalar for a number or text (JSON is YAML)."""
+    import json
+
+    return json.dumps(value)

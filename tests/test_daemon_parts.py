@@ -98,7 +98,7 @@ def test_status_json_has_the_contracts_shape() -> None:
     j = status.to_json()
     assert list(j) == [
         "state", "rps", "rps_setpoint", "loop", "imu", "link", "points", "recording", "aim_deg",
-        "faults", "fault_counts", "realtime", "rpc",
+        "faults", "fault_counts", "realtime", "rpc", "measurement_age_ms", "stale",
     ]  # fmt: skip
     assert j["state"] == "scanning" and type(j["state"]) is str
     assert j["loop"] == {

@@ -241,16 +241,17 @@ def test_export_writes_the_recording_csv_that_analyze_reads(tmp_path, monkeypatc
     assert csv.meta["control.gains.Gp"] == "3.78" and csv.meta["dropped_rows"] == "0"
 
 
-def test_export_refuses_a_gap_with_one_line(tmp_path, monkeypatch, capsys):
+def test_export_strict_refuses_a_gap_with_one_line(tmp_path, monkeypatch, capsys):
+    """--strict keeps the old behaviour (tests/test_export.py: without it, gaps are filled)."""
     with Recorder(tmp_path / "rec", CONFIG) as rec:
         loop = rec.channel("loop", list(LOOP_FIELDS))
         loop.append(_loop_rows(0, 100))
         loop.append(_loop_rows(130, 100))  # 30 samples dropped
     status, _, err = _tvsctl(
-        monkeypatch, capsys, "export", str(tmp_path / "rec"), "--csv", str(tmp_path / "o")
+        monkeypatch, capsys, "export", str(tmp_path / "rec"), "--csv", str(tmp_path / "o"), "--strict"
     )
     assert status == 2 and len(err.strip().splitlines()) == 1
-    assert "about 30 samples missing" in err and "--start/--end" in err
+    assert "30 samples missing" in err and "--start/--end" in err
     status, _, err = _tvsctl(
         monkeypatch, capsys, "export", str(tmp_path / "rec"), "--csv", str(tmp_path / "o"), "--start", "0.1"
     )

@@ -25,6 +25,7 @@ from tvsd.daemon.rpc import (
     PARSE_ERROR,
     STATE_ERROR,
     DaemonAlreadyRunning,
+    Limits,
     RpcError,
     RpcServer,
     SocketPathError,
@@ -448,7 +449,8 @@ class _Probe:
 def probe() -> Iterator[_Probe]:
     with (
         tempfile.TemporaryDirectory(prefix="tvs") as tmp,
-        ThreadedRpcServer(Path(tmp) / "f.sock", METHODS) as t,
+        # hundreds of examples down one connection: past the default rate (tests/test_rpc_limits.py)
+        ThreadedRpcServer(Path(tmp) / "f.sock", METHODS, limits=Limits(rate_per_s=1e6, burst=10**6)) as t,
     ):
         p = _Probe(t.path)
         yield p

@@ -21,7 +21,7 @@ from tvsd.hw.can.settings import CanSettings
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mpu6050 import ImuSettings
 from tvsd.scan.settings import ScanSettings
-from tvsd.schema import Where, build, check, load_yaml, option
+from tvsd.schema import FieldError, Where, build, check, load_yaml, option
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -29,19 +29,19 @@ class PlantParams:
     """The scanning-aperture drive, paper eqs. (9)–(11) and (15)–(16) in SI units."""
 
     name: str = option(doc="name of the parameter set")
-    J: float = option(doc="inertia of motor + aperture", unit="kg·m²", gt=0)
-    kv: float = option(doc="viscous friction", unit="N·m·s/rad", ge=0)
-    kM: float = option(doc="torque constant", unit="N·m/A", gt=0)
-    kb: float = option(doc="back-EMF constant", unit="V·s/rad", gt=0)
-    R: float = option(doc="armature resistance", unit="Ω", gt=0)
-    L: float = option(doc="armature inductance", unit="H", gt=0)
-    ku: float = option(doc="drive voltage gain", unit="V/V", gt=0)
-    tau_c: float = option(doc="Coulomb friction torque", unit="N·m", ge=0)
-    tau_s: float = option(doc="stiction torque", unit="N·m", ge=0)
-    sigma0: float = option(doc="LuGre bristle stiffness", unit="N·m/rad", gt=0)
-    sigma1: float = option(doc="LuGre bristle damping", unit="N·m·s/rad", ge=0)
-    sigma2: float = option(0.0, doc="LuGre viscous term", unit="N·m·s/rad", ge=0)
-    v0: float = option(doc="Stribeck velocity", unit="rad/s", gt=0)
+    J: float = option(doc="inertia of motor + aperture", unit="kg·m²", gt=0, le=10)
+    kv: float = option(doc="viscous friction", unit="N·m·s/rad", ge=0, le=100)
+    kM: float = option(doc="torque constant", unit="N·m/A", gt=0, le=100)
+    kb: float = option(doc="back-EMF constant", unit="V·s/rad", gt=0, le=100)
+    R: float = option(doc="armature resistance", unit="Ω", gt=0, le=1e4)
+    L: float = option(doc="armature inductance", unit="H", gt=0, le=100)
+    ku: float = option(doc="drive voltage gain", unit="V/V", gt=0, le=1e4)
+    tau_c: float = option(doc="Coulomb friction torque", unit="N·m", ge=0, le=1e4)
+    tau_s: float = option(doc="stiction torque", unit="N·m", ge=0, le=1e4)
+    sigma0: float = option(doc="LuGre bristle stiffness", unit="N·m/rad", gt=0, le=1e9)
+    sigma1: float = option(doc="LuGre bristle damping", unit="N·m·s/rad", ge=0, le=1e6)
+    sigma2: float = option(0.0, doc="LuGre viscous term", unit="N·m·s/rad", ge=0, le=1e3)
+    v0: float = option(doc="Stribeck velocity", unit="rad/s", gt=0, le=1e3)
     source: str = option("", doc="where the numbers come from")
 
     def __post_init__(self) -> None:
@@ -58,10 +58,10 @@ class DriveConfig:
 class Gains:
     """Gains of the robust law u = Gp·tanh(ε) + Gd·tanh(ε̇) + Gr·tanh(G0·ε) (paper eq. 18)."""
 
-    Gp: float = option(doc="proportional gain", unit="V", ge=0)
-    Gd: float = option(doc="derivative gain", unit="V", ge=0)
-    Gr: float = option(doc="robust gain", unit="V", ge=0)
-    G0: float = option(doc="sharpness factor", unit="1/rad", gt=0)
+    Gp: float = option(doc="proportional gain", unit="V", ge=0, le=1e4)
+    Gd: float = option(doc="derivative gain", unit="V", ge=0, le=1e4)
+    Gr: float = option(doc="robust gain", unit="V", ge=0, le=1e4)
+    G0: float = option(doc="sharpness factor", unit="1/rad", gt=0, le=1e6)
 
     def __post_init__(self) -> None:
         check(self)  # the one rule for gains from YAML, the API and the command line
@@ -75,9 +75,11 @@ class ControlConfig:
     rate_hz: float = option(10000.0, doc="control loop rate", unit="Hz", ge=100, le=100000)
     gains: Gains = option(doc="robust law gains")
     disturbance_bound_rad_s2: float = option(
-        1.65, doc="Δv_max for condition (23), paper's largest measured value", unit="rad/s²", ge=0
+        1.65, doc="Δv_max for condition (23), paper's largest measured value", unit="rad/s²", ge=0, le=1e6
     )
-    scan_accel_rps2: float = option(10.0, doc="speed-reference ramp in scanning mode", unit="rev/s²", gt=0)
+    scan_accel_rps2: float = option(
+        10.0, doc="speed-reference ramp in scanning mode", unit="rev/s²", gt=0, le=1e4
+    )
     overrun_streak_ms: float = option(
         100.0,
         doc="late ticks in a row for this long put the drive in its safe state (a shared machine stalls "
@@ -90,7 +92,11 @@ class ControlConfig:
         True, doc="scanning mode adds the model's steady voltage to the law's output (README)"
     )
     max_lag_rad: float = option(
-        math.pi, doc="scanning mode: the reference slips beyond this lag (anti-windup)", unit="rad", gt=0
+        math.pi,
+        doc="scanning mode: the reference slips beyond this lag (anti-windup)",
+        unit="rad",
+        gt=0,
+        le=1e3,
     )
 
     @property
@@ -101,21 +107,25 @@ class ControlConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class GeometryConfig:
-    baseline_m: float = option(0.5, doc="baseline a between PL and SA (MODEL-NOTES §6)", unit="m", gt=0)
+    baseline_m: float = option(
+        0.5, doc="baseline a between PL and SA (MODEL-NOTES §6)", unit="m", gt=0, le=100
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
 class VibrationConfig:
     model: str = option("ou", doc="Δv model (MODEL-NOTES §4)", choices=("off", "sde", "ou"))
-    sigma_v: float = option(0.3381, doc="σv: std (ou, rad/s²) or SDE intensity (sde, rad/s^1.5)", ge=0)
-    tau_n_s: float = option(0.005, doc="OU correlation time", unit="s", gt=0)
+    sigma_v: float = option(
+        0.3381, doc="σv: std (ou, rad/s²) or SDE intensity (sde, rad/s^1.5)", ge=0, le=1e4
+    )
+    tau_n_s: float = option(0.005, doc="OU correlation time", unit="s", gt=0, le=100)
 
 
 @dataclass(frozen=True, kw_only=True)
 class MeasurementConfig:
     sample_rate_hz: float = option(1000.0, doc="recording rate", unit="Hz", gt=0, le=100000)
-    encoder_counts_per_rev: int = option(8192, doc="encoder counts per revolution (×4)", ge=4)
-    speed_noise_rad_s: float = option(0.02, doc="speed measurement noise std", unit="rad/s", ge=0)
+    encoder_counts_per_rev: int = option(8192, doc="encoder counts per revolution (×4)", ge=4, le=1 << 24)
+    speed_noise_rad_s: float = option(0.02, doc="speed measurement noise std", unit="rad/s", ge=0, le=1e3)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -123,7 +133,7 @@ class SilConfig:
     vibration: VibrationConfig = option(VibrationConfig())
     measurement: MeasurementConfig = option(MeasurementConfig())
     effects: tuple[str, ...] = option([], doc='effects on, as "name:key=value,..." (tvsctl sim --help)')
-    seed: int = option(1, doc="random seed of the simulated plant", ge=0)
+    seed: int = option(1, doc="random seed of the simulated plant", ge=0, le=2**32 - 1)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -161,17 +171,51 @@ class DaemonSettings:
         0.02, doc="the control thread's ticks move into the recording this often", unit="s", gt=0, le=1
     )
     fault_window_s: float = option(
-        2.0, doc="full-rate control ticks recorded before each fault (the thread keeps 6.5 s)", unit="s", ge=0
+        2.0,
+        doc="full-rate control ticks recorded before each fault (the thread keeps 6.5 s)",
+        unit="s",
+        ge=0,
+        le=6,
     )
-    fault_log_size: int = option(200, doc="faults listed (older ones are only counted)", ge=1)
-    home_timeout_s: float = option(30.0, doc="the stepper axes home within this after start", unit="s", gt=0)
-    max_rps: float = option(60.0, doc="speed requests beyond ±this are refused", unit="rev/s", gt=0)
+    fault_log_size: int = option(200, doc="faults listed (older ones are only counted)", ge=1, le=100000)
+    status_faults: int = option(
+        10, doc="the newest faults carried in status (faults_list gives all fault_log_size)", ge=0, le=1000
+    )
+    home_timeout_s: float = option(
+        30.0, doc="the stepper axes home within this after start", unit="s", gt=0, le=3600
+    )
+    max_rps: float = option(60.0, doc="speed requests beyond ±this are refused", unit="rev/s", gt=0, le=200)
     stop_margin_s: float = option(
-        1.0, doc="at stop, the ramp down may take this much longer than the ramp says", unit="s", ge=0
+        1.0, doc="at stop, the ramp down may take this much longer than the ramp says", unit="s", ge=0, le=600
     )
     stopped_rps: float = option(
-        0.5, doc="at stop, the aperture counts as stopped below this", unit="rev/s", gt=0
+        0.5, doc="at stop, the aperture counts as stopped below this", unit="rev/s", gt=0, le=10
     )
+    # The API's bounds (tvsd/daemon/rpc.py Limits; README "Daemon API limits"): no client may
+    # stall the event loop or grow a reply without end.
+    rpc_max_batch: int = option(50, doc="requests in one batch line", ge=1, le=1000)
+    rpc_max_reply_bytes: int = option(1 << 20, doc="one reply line", unit="bytes", ge=4096, le=1 << 28)
+    rpc_rate_per_s: float = option(
+        50.0, doc="requests per second per connection (faster clients are slowed)", gt=0, le=1e6
+    )
+    rpc_burst: int = option(
+        50, doc="requests at once before the rate applies (≥ rpc_max_batch)", ge=1, le=100000
+    )
+    rpc_max_concurrent: int = option(8, doc="a batch's requests in flight at once", ge=1, le=1000)
+    rpc_max_clients: int = option(64, doc="connections at once", ge=1, le=10000)
+    stale_after_ms: float = option(
+        100.0,
+        doc="status marks rps and the loop's measurement stale when the newest measurement is older",
+        unit="ms",
+        gt=0,
+        le=10000,
+    )
+
+    def __post_init__(self) -> None:
+        if self.rpc_burst < self.rpc_max_batch:
+            raise FieldError(
+                "rpc_burst", f"must be at least rpc_max_batch ({self.rpc_max_batch}), got {self.rpc_burst}"
+            )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -229,8 +273,16 @@ def load_config(path: str | Path | None = None, *, params: str | None = None) ->
     cfg = dataclasses.replace(cfg, scan=dataclasses.replace(cfg.scan, baseline_m=cfg.geometry.baseline_m))
     if cfg.sil_profile is not None:
         profile = path.parent / cfg.sil_profile
-        if not profile.is_file():
-            line = data.key_lines.get("sil_profile", data.line)
+        line = data.key_lines.get("sil_profile", data.line)
+        try:
+            found = profile.is_file()
+        except (OSError, ValueError) as exc:  # a name too long, a NUL byte
+            why = exc.strerror if isinstance(exc, OSError) else str(exc)
+            raise ConfigError(
+                f"{path}:{line}: sil_profile: cannot use {_short(cfg.sil_profile)} ({why}); "
+                f"give a file path relative to {path.name}"
+            ) from None
+        if not found:
             raise ConfigError(
                 f"{path}:{line}: sil_profile: no such file {profile}; "
                 f"give a file path relative to {path.name}"
@@ -238,6 +290,10 @@ def load_config(path: str | Path | None = None, *, params: str | None = None) ->
         cfg = dataclasses.replace(cfg, sil=load_sil_profile(profile))
     _check_effects(cfg.sil_or_default, path, data)
     return cfg
+
+
+def _short(text: str) -> str:
+    return repr(text) if len(text) <= 60 else repr(text[:57]) + f"... ({len(text)} characters)"
 
 
 def load_sil_profile(path: Path) -> SilConfig:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import re
 import types
 import typing
 from dataclasses import dataclass, field
@@ -58,8 +59,29 @@ class LinedDict(dict[str, Any]):
     key_lines: dict[str, int]
 
 
+MAX_DEPTH = 16  # the deepest config is 3 levels: more is a mistake (or an attack on the stack)
+# Beyond any physical quantity in the config: a key without its own upper bound still refuses
+# `kb: 2**64` (it passed --check, then the simulation overflowed to null).
+DEFAULT_MAX = 1e12
+
+
 class _LineLoader(yaml.SafeLoader):
-    pass
+    """SafeLoader that remembers lines, refuses duplicate keys and deep nesting, and reads
+    numbers in YAML 1.2's spelling too (`6e-5`, `1E3`: strings to YAML 1.1)."""
+
+    _depth = 0
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        self._depth += 1
+        try:
+            if self._depth > MAX_DEPTH:
+                mark = self.peek_event().start_mark
+                raise yaml.composer.ComposerError(
+                    None, None, f"nested more than {MAX_DEPTH} levels deep (a config has 3)", mark
+                )
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
 
 
 def _construct_mapping(loader: _LineLoader, node: yaml.MappingNode) -> LinedDict:
@@ -68,13 +90,26 @@ def _construct_mapping(loader: _LineLoader, node: yaml.MappingNode) -> LinedDict
     result.line = node.start_mark.line + 1
     result.key_lines = {}
     for key_node, value_node in node.value:
-        key = loader.construct_object(key_node, deep=True)
-        result[str(key)] = loader.construct_object(value_node, deep=True)
-        result.key_lines[str(key)] = key_node.start_mark.line + 1
+        key = str(loader.construct_object(key_node, deep=True))
+        if key in result.key_lines:
+            raise yaml.constructor.ConstructorError(
+                None,
+                None,
+                f"duplicate key '{key}' (first at line {result.key_lines[key]}): keep one",
+                key_node.start_mark,
+            )
+        result[key] = loader.construct_object(value_node, deep=True)
+        result.key_lines[key] = key_node.start_mark.line + 1
     return result
 
 
 _LineLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+# YAML 1.2 floats that 1.1 reads as strings: an exponent without a dot or without a sign.
+_LineLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
 
 
 def load_yaml(path: Path) -> LinedDict:
@@ -87,6 +122,10 @@ def load_yaml(path: Path) -> LinedDict:
         raise ConfigError(f"{path}: cannot read config file: {exc}") from exc
     try:
         data = yaml.load(text, Loader=_LineLoader)
+    except RecursionError:  # a flow collection nested past the stack, before MAX_DEPTH: no mark
+        raise ConfigError(f"{path}:1: nested too deep (a config has 3 levels); fix the file") from None
+    except ValueError as exc:  # e.g. an integer of more than 4300 digits (Python's int limit)
+        raise ConfigError(f"{path}: a value YAML cannot read: {str(exc)[:80]}; fix it") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
@@ -167,7 +206,7 @@ def convert(tp: Any, value: Any, where: Where, meta: typing.Mapping[str, Any]) -
         return build(tp, value, where)  # type: ignore[arg-type]
     if origin is tuple:
         if not isinstance(value, list):
-            raise where.error(f"expected a list, got {value!r}")
+            raise where.error(f"expected a list, got {_shown_any(value)}")
         item_type = args[0]
         return tuple(
             convert(item_type, v, Where(where.path, where.line, f"{where.key}[{i}]"), meta)
@@ -175,18 +214,18 @@ def convert(tp: Any, value: Any, where: Where, meta: typing.Mapping[str, Any]) -
         )
     if tp is bool:
         if not isinstance(value, bool):
-            raise where.error(f"expected true or false, got {value!r}")
+            raise where.error(f"expected true or false, got {_shown_any(value)}")
         return value
     if tp is Path:
         if not isinstance(value, str) or not value:
-            raise where.error(f"expected a file path, got {value!r}")
+            raise where.error(f"expected a file path, got {_shown_any(value)}")
         return Path(value)
     if tp is str:
         if not isinstance(value, str):
-            raise where.error(f"expected text, got {value!r}")
+            raise where.error(f"expected text, got {_shown_any(value)}")
         choices = meta.get("choices")
         if choices and value not in choices:
-            raise where.error(f"expected one of {', '.join(choices)}, got {value!r}")
+            raise where.error(f"expected one of {', '.join(choices)}, got {_shown_any(value)}")
         return value
     if tp in (int, float):
         return _number(tp, value, where, meta)
@@ -197,9 +236,11 @@ def _number(tp: type, value: Any, where: Where, meta: typing.Mapping[str, Any]) 
     unit = f" {meta['unit']}" if meta.get("unit") else ""
     kind = "a whole number" if tp is int else "a number"
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise where.error(f"expected {kind}{unit}, got {value!r}")
+        raise where.error(f"expected {kind}{unit}, got {_shown_any(value)}")
     if tp is int and isinstance(value, float) and not value.is_integer():
-        raise where.error(f"expected {kind}{unit}, got {value!r}")
+        raise where.error(f"expected {kind}{unit}, got {_shown_any(value)}")
+    if isinstance(value, int) and abs(value) > 10**300:  # float() of it would overflow
+        raise where.error(f"must be within ±{DEFAULT_MAX:g}{unit}, got {_shown(value)}")
     number = tp(value)
     problem = _number_problem(number, value, meta)
     if problem is not None:
@@ -211,7 +252,7 @@ def _number_problem(number: float, value: Any, meta: typing.Mapping[str, Any]) -
     """What is wrong with `number` under the field's rule (`value`: as the user wrote it)."""
     unit = f" {meta['unit']}" if meta.get("unit") else ""
     if not math.isfinite(number):
-        return f"expected a finite number{unit}, got {value!r}"
+        return f"expected a finite number{unit}, got {_shown_any(value)}"
     for bound, ok, text in (
         ("gt", lambda b: number > b, "above"),
         ("ge", lambda b: number >= b, "at least"),
@@ -220,8 +261,23 @@ def _number_problem(number: float, value: Any, meta: typing.Mapping[str, Any]) -
     ):
         limit = meta.get(bound)
         if limit is not None and not ok(limit):
-            return f"must be {text} {limit:g}{unit}, got {value!r}"
+            return f"must be {text} {limit:g}{unit}, got {_shown(value)}"
+    if meta.get("le") is None and meta.get("lt") is None and abs(number) > DEFAULT_MAX:
+        return f"must be within ±{DEFAULT_MAX:g}{unit} (no physical value is larger), got {_shown(value)}"
     return None
+
+
+def _shown_any(value: Any) -> str:
+    if isinstance(value, int) and not isinstance(value, bool):
+        return _shown(value)
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 10**15:
+        return f"{float(value):.3g}" if abs(value) < 10**300 else "a number of hundreds of digits"
+    return repr(value)
 
 
 def check(obj: Any) -> None:
@@ -238,6 +294,6 @@ def check(obj: Any) -> None:
         if isinstance(value, (int, float)):
             problem = _number_problem(value, value, meta)
         elif isinstance(value, str) and meta.get("choices") and value not in meta["choices"]:
-            problem = f"expected one of {', '.join(meta['choices'])}, got {value!r}"
+            problem = f"expected one of {', '.join(meta['choices'])}, got {_shown_any(value)}"
         if problem is not None:
             raise FieldError(f.name, problem)

@@ -1,26 +1,38 @@
 """`tvsctl export REC --csv OUT`: a daemon recording's loop channel as docs/architecture.md's recording CSV.
 
-t, u, omega, phi (and any other fields of the loop channel, as extra columns) come from the `loop`
-channel; the metadata lines name the source and carry the scalar settings of the config the daemon
-ran with (plant, drive, control, geometry). `tvsctl analyze OUT` reads the result.
+Reading and writing are apart: `tvsd.recording.table.loop_table` makes the uniform table (gaps
+filled and flagged, the controller's reference joined, fault marks placed), and a writer of
+`WRITERS` puts it in a file — another format is one more writer.
+
+Columns: t, u, omega, phi, then omega_ref, phi_ref, u_ff (the daemon's reference), gap (1: a
+sample the recording lacked, filled by linear interpolation), fault (faults marked in that sample),
+and any other numeric field of the channel. Metadata lines: the source, ``u_unit: V`` (the daemon
+commands volts), the gaps (how many, the missing samples, the first ones listed), the faults (one
+line each: time, kind, cause), and the scalar settings of the config the daemon ran with (plant,
+drive, control, geometry). `--strict` refuses a recording with a gap, as export used to.
+`tvsctl analyze OUT` reads the result.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from tvsd.cli.output import warn
-from tvsd.errors import EXIT_OK, DataFileError, UsageError
+from tvsd.errors import EXIT_OK, UsageError
 from tvsd.recording.csvfile import write
 from tvsd.recording.format import LOOP_CHANNEL
 from tvsd.recording.reader import flatten_config, open_recording
+from tvsd.recording.table import Table, loop_table
 
 CONFIG_SECTIONS = ("plant", "drive", "control", "geometry")
 SIGNIFICANT_DIGITS = 9  # tvsd.recording.csvfile.write keeps %.9g
+LISTED_GAPS = 50  # gaps listed one by one in the metadata; more are only counted
+U_UNIT = "V"  # the daemon's command is the drive voltage (docs/architecture.md, u_unit)
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -28,13 +40,21 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "export",
         help="write a daemon recording's loop signals as the recording CSV (input of analyze)",
         description="Write the loop channel (t,u,omega,phi) of a recording made by tvsd as the "
-        "recording CSV of docs/architecture.md, with the daemon's config as metadata lines.",
+        "recording CSV of docs/architecture.md, with the controller's reference (omega_ref, "
+        "phi_ref), gaps filled and flagged (gap column), fault marks (fault column) and the "
+        "daemon's config as metadata lines.",
     )
     p.add_argument("rec", type=Path, metavar="REC", help="recording directory written by tvsd")
     p.add_argument("--csv", type=Path, required=True, metavar="OUT", help="CSV file to write")
     p.add_argument("--channel", default=LOOP_CHANNEL, help=f"channel to export (default: {LOOP_CHANNEL})")
     p.add_argument("--start", type=float, default=0.0, metavar="S", help="seconds after the first sample")
     p.add_argument("--end", type=float, default=math.inf, metavar="S", help="seconds after the first sample")
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="refuse a recording with missing samples (default: fill them by interpolation, flag "
+        "them in the gap column and list them)",
+    )
     p.set_defaults(func=_run)
 
 
@@ -42,65 +62,64 @@ def _run(args: argparse.Namespace) -> int:
     rec = open_recording(args.rec)
     for problem in rec.problems:
         warn(f"{args.rec}: {problem}")
-    if args.channel not in rec.channels:
-        have = ", ".join(sorted(rec.channels)) or "none"
-        raise DataFileError(f"{args.rec}: no '{args.channel}' channel in this recording (channels: {have})")
-    rows = rec.channels[args.channel]
-    fields = rows.dtype.names or ()
-    missing = [f for f in ("t", "u", "omega") if f not in fields]
-    if missing:
-        raise DataFileError(f"{args.rec}: channel '{args.channel}' lacks field(s) {', '.join(missing)}")
-    t_all = rows["t"].astype(float)
-    if len(t_all) < 2:
-        raise DataFileError(f"{args.rec}: channel '{args.channel}' has {len(t_all)} row(s); need at least 2")
-    rel = t_all - t_all[0]
-    sel = rows[(rel >= args.start) & (rel <= args.end)]
-    if len(sel) < 2:
-        raise UsageError(
-            f"--start {args.start:g} / --end {args.end:g} keep {len(sel)} row(s); need at least 2"
-        )
-    t = sel["t"].astype(float)
-    rate = _uniform_rate(t, args.rec)
-    t = t - t[0]  # relative time: %.9g of a monotonic clock's seconds would lose the sample spacing
-    span_ok = 10.0 ** (math.ceil(math.log10(max(t[-1], 1e-300))) - SIGNIFICANT_DIGITS) <= 0.005 / rate
+    table = loop_table(rec, args.channel, args.start, args.end, strict=args.strict)
+    span = float(table.t[-1])
+    span_ok = 10.0 ** (math.ceil(math.log10(max(span, 1e-300))) - SIGNIFICANT_DIGITS) <= 0.005 / table.rate_hz
     if not span_ok:
         raise UsageError(
-            f"{t[-1]:.0f} s at {rate:g} Hz is too long for the CSV's {SIGNIFICANT_DIGITS} digits of t; "
-            "export it in parts with --start/--end"
+            f"{span:.0f} s at {table.rate_hz:g} Hz is too long for the CSV's {SIGNIFICANT_DIGITS} digits "
+            "of t; export it in parts with --start/--end"
         )
-    extra = {
-        f: sel[f].astype(float)
-        for f in fields
-        if f not in ("t", "u", "omega", "phi") and sel.dtype[f].shape == () and sel.dtype[f].kind in "fiub"
-    }
     meta: dict[str, object] = {
         "source": "tvsctl export",
         "recording": args.rec.resolve(),
         "started_utc": rec.header.get("started_utc", "unknown"),
         "channel": args.channel,
-        "start_s": float(rel[(rel >= args.start)][0]),
+        "u_unit": U_UNIT,
+        **table.meta,
     }
     if rec.stats is not None:
         meta["dropped_rows"] = rec.stats.get("channels", {}).get(args.channel, {}).get("dropped_rows", 0)
+    meta.update(_gap_meta(table))
+    meta.update(_fault_meta(table))
     meta.update(flatten_config(rec.config_text, CONFIG_SECTIONS))
-    phi = sel["phi"].astype(float) if "phi" in fields else None
-    write(args.csv, t, sel["u"].astype(float), sel["omega"].astype(float), phi, rate, meta, extra)
-    print(f"{args.csv}: {len(t)} rows, {t[-1]:.3f} s at {rate:g} Hz from {args.rec}")
+    WRITERS["csv"](args.csv, table, meta)
+    if table.gaps:
+        warn(
+            f"{args.rec}: {len(table.gaps)} gap(s), {table.missing_samples} sample(s) missing "
+            f"(longest {max(g.duration_ms for g in table.gaps):g} ms): filled by interpolation, "
+            "flagged gap=1 (--strict refuses them)"
+        )
+    print(f"{args.csv}: {len(table.t)} rows, {span:.3f} s at {table.rate_hz:g} Hz from {args.rec}")
     return EXIT_OK
 
 
-def _uniform_rate(t: np.ndarray, rec: Path) -> float:
-    """The sample rate, if t is strictly increasing and uniform (the CSV contract's 1 % rule)."""
-    dt = np.diff(t)
-    period = float(np.median(dt))
-    if not period > 0:
-        raise DataFileError(f"{rec}: t does not increase (median step {period:g} s)")
-    bad = np.nonzero((dt <= 0) | (np.abs(dt - period) > 0.01 * period))[0]
-    if len(bad):
-        k = int(bad[0])
-        raise DataFileError(
-            f"{rec}: t jumps by {dt[k]:g} s at t = {t[k] - t[0]:.4f} s after the first sample "
-            f"(step {period:g} s elsewhere): about {round(dt[k] / period) - 1} samples missing "
-            "(dropped by the recorder, or the loop stopped); export around it with --start/--end"
-        )
-    return 1.0 / period
+def _gap_meta(table: Table) -> dict[str, object]:
+    meta: dict[str, object] = {"gaps": len(table.gaps), "gap_samples": table.missing_samples}
+    for j, g in enumerate(table.gaps[:LISTED_GAPS], 1):
+        meta[f"gap_{j}"] = f"after t={g.t_s:.3f} s, {g.samples} samples ({g.duration_ms:g} ms)"
+    if table.duplicates:
+        meta["duplicate_rows_dropped"] = table.duplicates
+    return meta
+
+
+def _fault_meta(table: Table) -> dict[str, object]:
+    meta: dict[str, object] = {"faults": len(table.faults)}
+    for j, f in enumerate(table.faults, 1):
+        meta[f"fault_{j}"] = f"t={f.t_s:.3f} s, {f.kind}: {f.cause}"
+    if table.unplaced_faults:
+        meta["faults_not_placed"] = table.unplaced_faults  # older recordings' marks lack loop time
+    return meta
+
+
+def write_csv(path: Path, table: Table, meta: dict[str, object]) -> None:
+    cols = dict(table.columns)
+    u, omega, phi = cols.pop("u"), cols.pop("omega"), cols.pop("phi", None)
+    order = ("omega_ref", "phi_ref", "u_ff", "gap", "fault")
+    extra = {name: cols.pop(name) for name in order if name in cols}
+    extra.update(cols)
+    write(path, table.t, u, omega, phi, table.rate_hz, meta, {k: np.asarray(v) for k, v in extra.items()})
+
+
+# Output formats by name: a writer takes the path, the table and the metadata lines.
+WRITERS: dict[str, Callable[[Path, Table, dict[str, object]], None]] = {"csv": write_csv}

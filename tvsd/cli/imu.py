@@ -1,7 +1,7 @@
 """tvsctl imu — capture and calibrate the two MPU6050s, on the bus or on their simulated twins.
 
   tvsctl imu capture [--sil] [--seconds S] [--out FILE] [--json] [--plot FILE.png]
-  tvsctl imu calibrate [--sil] [--seconds S] [--out FILE] [--json]
+  tvsctl imu calibrate [--sil [--data-dir DIR]] [--seconds S] [--out FILE] [--json]
   tvsctl imu bench [--seconds S] [--json]
 
 This module owns the commands: capture, the SA line's analysis, the samples file, calibration and
@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from tvsd.cli.imu_sil import add_sil_arguments, sil_bench
+from tvsd.daemon.main import DEFAULT_DATA
 from tvsd.errors import EXIT_OK, DataFileError, DeviceError, UsageError
 from tvsd.hw import imu_calibration as cal
 from tvsd.hw.i2c_bus import open_bus
@@ -272,7 +273,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     finally:
         bus.close()
     result = {n: cal.calibrate_sensor(n, r.accel, r.gyro, str(r.status["chip"])) for n, r in recs.items()}
-    out = args.out or settings.calibration_file
+    # --sil: the SIL daemon's file in its data directory, never the board's (its biases differ)
+    out = args.out or (args.data_dir / cal.SIL_FILE_NAME if args.sil else settings.calibration_file)
     try:
         cal.save(out, result)
     except OSError as exc:
@@ -351,7 +353,15 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     cap.set_defaults(func=cmd_capture)
     calp = sub.add_parser("calibrate", help="gyro bias at rest, saved apart from the config")
     _common(calp, 2.0)
-    calp.add_argument("--out", type=Path, help="calibration file (default imu's)")
+    calp.add_argument(
+        "--out", type=Path, help=f"calibration file (default imu's; with --sil DATA_DIR/{cal.SIL_FILE_NAME})"
+    )
+    calp.add_argument(
+        "--data-dir",
+        type=Path,
+        default=DEFAULT_DATA,
+        help=f"--sil: the SIL daemon's --data-dir, where its twins' calibration is (default {DEFAULT_DATA})",
+    )
     calp.add_argument("--sil-moving", action="store_true", help="--sil: keep the motor spinning")
     calp.set_defaults(func=cmd_calibrate)
     bench = sub.add_parser("bench", help="CPU per second of capture, bus budget")

@@ -50,6 +50,7 @@ import os
 import threading
 import time
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -281,6 +282,15 @@ def request_realtime(priority: int = 80, cpu: int | None = None, lock: bool = Tr
     return Realtime(fifo, aff, mem)
 
 
+class TickBatch(NamedTuple):
+    """`Runner.ticks_since`: rows of ticks first .. next-1, and how many before `first` were lost."""
+
+    rows: np.ndarray
+    first: int
+    next: int
+    lost: int
+
+
 class Runner:
     """The control thread and its shared arrays; SIL when built with `sil=True`.
 
@@ -376,6 +386,12 @@ class Runner:
         """The latest measured speed, rad/s (SIL: the plant's)."""
         return float(self.vals[V_OMEGA])
 
+    @property
+    def measurement_age_s(self) -> float | None:
+        """How old the newest measurement is (None before the first): the status's staleness."""
+        t_ns = int(self.ints[K_MEAS_NS])
+        return None if t_ns == 0 else (time.monotonic_ns() - t_ns) / L.NS
+
     def stale_after(self, seconds: float) -> None:
         """Hold the safe state when the newest measurement is older than this (0: never)."""
         self.ints[K_STALE_NS] = round(seconds * L.NS)
@@ -449,6 +465,18 @@ class Runner:
         n = min(ticks, size) if n is None else min(n, ticks, size)
         idx = np.arange(ticks - n, ticks) % size
         return self.rec[idx].view(TICK_DTYPE).reshape(n)
+
+    def ticks_since(self, seq: int) -> TickBatch:
+        """The ticks numbered `seq` on, oldest first (a copy): read in turn with `next`, no tick
+        comes twice and none is skipped unnoticed — ticks the ring overwrote before they were
+        read (before the call, or during the copy) are counted in `lost`, not returned."""
+        end, size = self.ticks, self.rec.shape[0]  # one read of the count: rows < end are written
+        first = min(max(seq, end - size), end)
+        rows = self.rec[np.arange(first, end) % size].view(TICK_DTYPE).reshape(end - first)
+        # The thread kept writing during the copy: tick k's row is reused by tick k + size, and
+        # tick `ticks` may be being written now, so rows of ticks <= ticks - size are suspect.
+        torn = min(max(0, self.ticks - size + 1 - first), end - first)
+        return TickBatch(rows[torn:], first + torn, end, first + torn - seq)
 
     # --- lifecycle --------------------------------------------------------------------------------
     def start(self, max_ticks: int = 0) -> None:

@@ -49,7 +49,7 @@ from tvsd.daemon.api import Api
 from tvsd.daemon.drive_link import DriveLink
 from tvsd.daemon.faults import LOOP_FAULTS, FaultEntry, FaultKind, FaultLog
 from tvsd.daemon.notify import Notifier
-from tvsd.daemon.rpc import RpcServer
+from tvsd.daemon.rpc import Limits, RpcServer
 from tvsd.daemon.scan_session import PointCounters, ScanSession
 from tvsd.daemon.session_recording import SessionRecording
 from tvsd.daemon.state import DaemonState, StateMachine
@@ -57,6 +57,7 @@ from tvsd.daemon.status import Aim, LoopStatus, Status
 from tvsd.errors import DeviceError, TvsdError
 from tvsd.hw.can.bridge import CanBridge
 from tvsd.hw.mcu.link import FaultEvent, PulseEvent
+from tvsd.recording.writer import new_recording_dir
 from tvsd.scan.points import Point
 from tvsd.scan.pulses import OPTICAL
 
@@ -97,7 +98,12 @@ class Daemon:
             import tvsd.daemon.imu_service  # noqa: F401
         self.notifier = Notifier()
         self.api = Api(self)
-        self.rpc = RpcServer(socket_path, self.api.methods())
+        d = cfg.daemon
+        limits = Limits(
+            d.rpc_max_batch, d.rpc_max_reply_bytes, d.rpc_rate_per_s, d.rpc_burst,
+            d.rpc_max_concurrent, d.rpc_max_clients,
+        )  # fmt: skip
+        self.rpc = RpcServer(socket_path, self.api.methods(), limits=limits)
         self.can = CanBridge(cfg.can, self.api.can_command)
         self._state = StateMachine(on_change=self._state_changed)
         self.target_rps = 0.0
@@ -364,8 +370,9 @@ class Daemon:
         self.mark("state", state=str(new), was=str(old))
 
     def mark(self, event: str, **data: Any) -> None:
-        if self.recording is not None:
-            self.recording.mark(event, **data)
+        if self.recording is not None:  # t_loop: on the control ticks' clock, placed by export
+            t_loop = (time.monotonic_ns() - self.runner.start_ns) / 1e9
+            self.recording.mark(event, t_loop=t_loop, **data)
 
     def _fault(
         self, kind: FaultKind, cause: str, action: str, safe_after_ms: float | None = None
@@ -409,6 +416,9 @@ class Daemon:
 
     def status(self) -> Status:
         imu = self.imu.status() if self.imu is not None else {"source": self.cfg.devices.imu, "state": "off"}
+        age = self.runner.measurement_age_s
+        age_ms = None if age is None else round(age * 1e3, 1)
+        shown = self.cfg.daemon.status_faults
         return Status(
             state=self.state,
             rps=self.measured_rps,
@@ -419,21 +429,23 @@ class Daemon:
             points=self.points.status(),
             recording=str(self.recording.path) if self.recording is not None else None,
             aim_deg=Aim(phi=self.aim_deg[0], gamma=self.aim_deg[1]),
-            faults=self.faults.entries(),
+            faults=self.faults.entries()[-shown:] if shown else [],
             fault_counts=self.faults.counts(),
             realtime=self.runner.realtime_report,
             rpc=self.rpc.stats,
+            measurement_age_ms=age_ms,
+            stale=age_ms is None or age_ms > self.cfg.daemon.stale_after_ms,
         )
 
     # --- recording ---------------------------------------------------------------------------------
     def start_recording(self) -> Path:
         """A new recording in the data directory, of everything from now on (none may run)."""
         assert self.recording is None, "one recording at a time"
-        path = self.data_dir / time.strftime("rec-%Y%m%d-%H%M%S")
-        try:
+        try:  # a fresh directory made now (rec-…-2 within the same second), never one planted
+            path = new_recording_dir(self.data_dir, time.strftime("rec-%Y%m%d-%H%M%S"))
             self.recording = SessionRecording(path, self.config_text, from_tick=self.runner.ticks)
         except OSError as exc:
-            raise DeviceError(f"cannot record into {path}: {exc}; check --data-dir") from None
+            raise DeviceError(f"cannot record into {self.data_dir}: {exc}; check --data-dir") from None
         self.mark("state", state=str(self.state), was=None)
         return path
 

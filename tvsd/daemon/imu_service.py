@@ -58,6 +58,7 @@ log = logging.getLogger(__name__)
 
 NAMES = ("pl", "sa")
 BACKENDS = ("hardware", "sil", "off")
+STILL_RPS = 0.05  # SIL: the twins feel the plant's vibration only while the shaft turns faster
 STATES = ("off", "ok", "starting", "degraded", "lost")  # by severity: the overall is the worst
 LOST_POLLS = 5
 INJECT_KINDS = ("loss", "restore")
@@ -162,7 +163,10 @@ class ImuService:
         twin_clock: Clock = self.clock
         motions = self.motions
         if self.plant is not None:
-            motions = plant_pair(self.plant, axis=reg.SA_AXES[self.settings.sa_axis])
+            # at rest below the calibration's own limit (tvsd.daemon.api: 0.05 rev/s)
+            motions = plant_pair(
+                self.plant, axis=reg.SA_AXES[self.settings.sa_axis], still_below_rps=STILL_RPS
+            )
             twin_clock = PlantClock(self.plant)
         elif motions is None:  # at rest: gravity, the twins' noise and biases
             motions = synthetic_pair(SyntheticParams(rps=0.0, imbalance_rad_s2=0.0, vibration_std_rad_s2=0.0))

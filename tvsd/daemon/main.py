@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import signal
+import stat
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -74,24 +75,47 @@ def main(argv: Sequence[str] | None = None) -> int:
         from dataclasses import replace
 
         # the twins' calibration lives with the SIL data: a board's file must not apply to them
-        imu = replace(cfg.imu, calibration_file=args.data_dir / "imu-calibration-sil.json")
+        from tvsd.hw.imu_calibration import SIL_FILE_NAME
+
+        imu = replace(cfg.imu, calibration_file=args.data_dir / SIL_FILE_NAME)
         cfg = replace(cfg, devices=replace(cfg.devices, mcu="sil", imu="sil"), imu=imu)
     config_path = args.config or config_dir() / "tvsd.yaml"
-    try:
-        args.data_dir.mkdir(parents=True, exist_ok=True)
-        args.socket.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        print(
-            f"tvsd: cannot create {exc.filename}: {exc.strerror}; give --data-dir / --socket "
-            "in a writable place",
-            file=sys.stderr,
-        )
-        return EXIT_USAGE
+    for folder, option in ((args.data_dir, "--data-dir"), (args.socket.parent, "--socket")):
+        problem = _make_dir(folder, option)
+        if problem is not None:
+            print(f"tvsd: {problem}", file=sys.stderr)
+            return EXIT_USAGE
     try:
         return asyncio.run(_serve(args, cfg, config_path.read_text(encoding="utf-8")))
     except TvsdError as exc:
         print(f"tvsd: {exc}", file=sys.stderr)
         return exc.exit_status
+
+
+def _make_dir(folder: Path, option: str) -> str | None:
+    """Create `folder` if its parent exists (one level, said on stderr; never a whole missing
+    path: a typo must not grow a tree), refuse a symlink or a non-directory; the problem or None."""
+    try:
+        st = folder.lstat()
+    except FileNotFoundError:
+        if not folder.parent.is_dir():
+            return (
+                f"{option} {folder}: directory {folder.parent} does not exist; create it first "
+                "(systemd's RuntimeDirectory=/StateDirectory= do) or give another path"
+            )
+        try:
+            folder.mkdir(mode=0o750)
+        except OSError as exc:
+            return f"{option}: cannot create {folder}: {exc.strerror}; give a writable place"
+        print(f"tvsd: created {folder} ({option})", file=sys.stderr)
+        return None
+    except OSError as exc:
+        return f"{option} {folder}: {exc.strerror}"
+    if stat.S_ISLNK(st.st_mode) and folder.is_dir():
+        return None  # a symlinked directory the admin set up (e.g. /var/lib/tvsd → /data): allowed
+    if not stat.S_ISDIR(st.st_mode):
+        return f"{option} {folder} exists and is not a directory: remove it or give another path"
+    return None
 
 
 async def _serve(args: argparse.Namespace, cfg: Config, config_text: str) -> int:

@@ -12,7 +12,14 @@ finds the queue full is dropped and counted (``stats["dropped_notifications"]``)
 ``tvsctl points`` must not slow the scanner. Call ``publish`` from the event-loop thread; from the
 control thread use ``server.publish_threadsafe(topic, params)``.
 
-Requests of one connection are handled in order; a batch's requests run concurrently.
+Requests of one connection are handled in order; a batch's requests run concurrently, at most
+``Limits.max_concurrent`` at a time, the event loop served between groups.
+
+Bounds (`Limits`, from the config's ``daemon:`` section; README "Daemon API limits"): a client
+sending faster than ``rate_per_s`` requests (a batch counts each member) is slowed down — its next
+line is read only when its token bucket allows — so no client can hog the event loop; a batch
+longer than ``max_batch``, a reply longer than ``max_reply_bytes`` and a connection beyond
+``max_clients`` get a -32003 LIMIT_ERROR naming the limit (``error.data``: limit, value, seen).
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Collection, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +43,7 @@ from tvsd.rpc.protocol import (
     INTERNAL_ERROR,
     INVALID_PARAMS,
     INVALID_REQUEST,
+    LIMIT_ERROR,
     METHOD_NOT_FOUND,
     PARSE_ERROR,
     STATE_ERROR,
@@ -55,11 +64,13 @@ __all__ = [
     "INTERNAL_ERROR",
     "INVALID_PARAMS",
     "INVALID_REQUEST",
+    "LIMIT_ERROR",
     "METHOD_NOT_FOUND",
     "PARSE_ERROR",
     "SOCKET_PATH_MAX",
     "STATE_ERROR",
     "DaemonAlreadyRunning",
+    "Limits",
     "Method",
     "RpcError",
     "RpcServer",
@@ -86,6 +97,44 @@ class DaemonAlreadyRunning(TvsdError, FileExistsError):
     exit_status = EXIT_FAILURE
 
 
+@dataclass(frozen=True)
+class Limits:
+    """What one client may ask of the server (module docstring); defaults as the config's."""
+
+    max_batch: int = 50  # requests in one batch line
+    max_reply_bytes: int = 1 << 20  # one reply line (a status is ~2-5 KB)
+    rate_per_s: float = 50.0  # requests per second per connection, sustained
+    burst: int = 50  # requests a connection may send at once before the rate applies
+    max_concurrent: int = 8  # a batch's requests in flight at once
+    max_clients: int = 64  # connections at once
+
+    def __post_init__(self) -> None:
+        if self.burst < self.max_batch:
+            raise ValueError(f"burst {self.burst} must be at least max_batch {self.max_batch}")
+
+
+UNLIMITED = Limits(max_batch=1000, max_reply_bytes=1 << 30, rate_per_s=1e9, burst=10**9, max_clients=10**4)
+
+
+def _limit_error(name: str, value: float, seen: float, text: str) -> RpcError:
+    return RpcError(LIMIT_ERROR, text, {"limit": name, "value": value, "seen": seen})
+
+
+class _Bucket:
+    """A token bucket: `wait(n)` returns how long to pause before n more requests."""
+
+    def __init__(self, rate: float, burst: int) -> None:
+        self.rate, self.burst = rate, float(burst)
+        self.tokens, self.t = float(burst), time.monotonic()
+
+    def wait(self, n: int) -> float:
+        now = time.monotonic()
+        self.tokens = min(self.burst, self.tokens + (now - self.t) * self.rate)
+        self.t = now
+        self.tokens -= n
+        return 0.0 if self.tokens >= 0 else -self.tokens / self.rate
+
+
 # --- server --------------------------------------------------------------------------------------
 
 
@@ -96,8 +145,9 @@ async def _topic_method(topic: str) -> None:
 class _Client:
     """One connection: its subscriptions and its bounded queue of notifications."""
 
-    def __init__(self, writer: asyncio.StreamWriter, queue_size: int) -> None:
+    def __init__(self, writer: asyncio.StreamWriter, queue_size: int, limits: Limits) -> None:
         self.writer = writer
+        self.bucket = _Bucket(limits.rate_per_s, limits.burst)
         self.topics: set[str] = set()
         self.queue: asyncio.Queue[bytes] = asyncio.Queue(maxsize=queue_size)
         self.sender = asyncio.create_task(self._send_loop())
@@ -128,6 +178,7 @@ class RpcServer:
         mode: int = 0o660,
         queue_size: int = 256,
         topics: Collection[str] | None = None,
+        limits: Limits | None = None,
     ) -> None:
         clash = [name for name in _BUILTINS if name in methods]
         if clash:
@@ -136,6 +187,7 @@ class RpcServer:
         self.max_message = max_message
         self.mode = mode
         self.queue_size = queue_size
+        self.limits = limits if limits is not None else Limits()
         self.topics = frozenset(topics) if topics is not None else None
         self._methods = MethodTable(methods, also_offered=_BUILTINS)
         self._builtins = MethodTable(dict.fromkeys(_BUILTINS, _topic_method))
@@ -143,7 +195,7 @@ class RpcServer:
         self._clients: set[_Client] = set()
         self._inode: int | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._counts = {"requests": 0, "errors": 0, "dropped_notifications": 0}
+        self._counts = {"requests": 0, "errors": 0, "dropped_notifications": 0, "throttled": 0, "refused": 0}
 
     @property
     def stats(self) -> dict[str, int]:
@@ -242,7 +294,20 @@ class RpcServer:
     # connections
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        client = _Client(writer, self.queue_size)
+        if len(self._clients) >= self.limits.max_clients:
+            self._counts["refused"] += 1
+            n = self.limits.max_clients
+            err = _limit_error(
+                "max_clients", n, len(self._clients) + 1,
+                f"{n} clients are connected, the most tvsd serves (daemon.rpc_max_clients); "
+                "closing this connection: retry later or raise the limit",
+            )  # fmt: skip
+            with contextlib.suppress(ConnectionError):
+                writer.write(dumps(error_reply(None, err)))
+                await writer.drain()
+            writer.close()
+            return
+        client = _Client(writer, self.queue_size, self.limits)
         self._clients.add(client)
         try:
             while True:
@@ -259,6 +324,7 @@ class RpcServer:
                     break
                 if not line:
                     break
+                await self._throttle(client, line)
                 reply = await self._handle_line(line, client)
                 if reply is not None:
                     await client.write(reply)
@@ -267,6 +333,17 @@ class RpcServer:
         finally:
             self._clients.discard(client)
             client.close()
+
+    async def _throttle(self, client: _Client, line: bytes) -> None:
+        """Pause this connection (only) while it is over its request rate; a batch counts each
+        member (estimated from the line, capped at max_batch, before parsing it)."""
+        n = 1
+        if line.lstrip()[:1] == b"[":
+            n = max(1, min(self.limits.max_batch, line.count(b'"method"')))
+        pause = client.bucket.wait(n)
+        if pause > 0:
+            self._counts["throttled"] += 1
+            await asyncio.sleep(pause)
 
     async def _handle_line(self, line: bytes, client: _Client) -> bytes | None:
         if not line.strip():
@@ -280,7 +357,21 @@ class RpcServer:
             if not msg:
                 self._counts["errors"] += 1
                 return dumps(error_reply(None, RpcError(INVALID_REQUEST, "empty batch: send [] of requests")))
-            replies = await asyncio.gather(*(self._handle(m, client) for m in msg))
+            if len(msg) > self.limits.max_batch:
+                self._counts["errors"] += 1
+                n = self.limits.max_batch
+                too_long = _limit_error(
+                    "max_batch", n, len(msg),
+                    f"batch of {len(msg)} requests; tvsd takes at most {n} in one line "
+                    "(daemon.rpc_max_batch): split it",
+                )  # fmt: skip
+                return dumps(error_reply(None, too_long))
+            replies: list[dict[str, object] | None] = []
+            step = self.limits.max_concurrent
+            for k in range(0, len(msg), step):
+                if k:
+                    await asyncio.sleep(0)  # the event loop's other work between groups
+                replies += await asyncio.gather(*(self._handle(m, client) for m in msg[k : k + step]))
             done = [r for r in replies if r is not None]
             return self._encode(done) if done else None
         reply = await self._handle(msg, client)
@@ -288,10 +379,21 @@ class RpcServer:
 
     def _encode(self, reply: object) -> bytes:
         try:
-            return dumps(reply)
+            data = dumps(reply)
         except (TypeError, ValueError) as exc:  # unreachable for replies built from clean'd results
             self._counts["errors"] += 1
             return dumps(error_reply(None, RpcError(INTERNAL_ERROR, f"reply is not JSON: {exc}")))
+        n = self.limits.max_reply_bytes
+        if len(data) <= n:
+            return data
+        self._counts["errors"] += 1
+        rid = reply.get("id") if isinstance(reply, dict) else None
+        err = _limit_error(
+            "max_reply_bytes", n, len(data),
+            f"the reply would be {len(data)} bytes; tvsd sends at most {n} in one line "
+            "(daemon.rpc_max_reply_bytes): ask for less in one request or batch",
+        )  # fmt: skip
+        return dumps(error_reply(rid, err))
 
     async def _handle(self, msg: object, client: _Client) -> dict[str, object] | None:
         self._counts["requests"] += 1
@@ -379,7 +481,7 @@ def bench_rpc(n: int = 2000) -> dict[str, float]:
 
     with (
         tempfile.TemporaryDirectory(prefix="tvsd-bench-") as tmp,
-        ThreadedRpcServer(Path(tmp) / "bench.sock", {"status": status}) as threaded,
+        ThreadedRpcServer(Path(tmp) / "bench.sock", {"status": status}, limits=UNLIMITED) as threaded,
         RpcClient(threaded.path) as client,
     ):
         for _ in range(min(100, n)):  # warm-up

@@ -45,7 +45,8 @@ class SessionRecording:
     def __init__(self, path: Path, config_text: str, *, from_tick: int = 0) -> None:
         """Record into `path` (created), the control ticks from tick number `from_tick` on."""
         self.path = path
-        self._last_tick = from_tick
+        self._next_tick = from_tick  # the number of the next control tick to record
+        self.lost_ticks = 0  # overwritten in the runner's ring before a drain read them
         self.recorder = Recorder(path, config_text)
         r = self.recorder
         self.loop = r.channel(LOOP_CHANNEL, list(LOOP_FIELDS))
@@ -62,12 +63,15 @@ class SessionRecording:
         return self.recorder.error
 
     def drain(self, runner: Runner) -> None:
-        """The control ticks since the last drain (as many as the runner still keeps)."""
-        ticks = runner.ticks
-        n = min(ticks - self._last_tick, runner.ring_size)
-        self._last_tick = ticks
-        if n > 0:
-            self.loop_ticks(runner.recent_ticks(n))
+        """The control ticks since the last drain, by tick number (`Runner.ticks_since`): none
+        twice, none skipped; ticks the ring overwrote first are counted and marked `ticks_lost`."""
+        batch = runner.ticks_since(self._next_tick)
+        self._next_tick = batch.next
+        if batch.lost:
+            self.lost_ticks += batch.lost
+            self.recorder.mark("ticks_lost", ticks=batch.lost, first=batch.first - batch.lost)
+        if len(batch.rows):
+            self.loop_ticks(batch.rows)
 
     def loop_ticks(self, rows: np.ndarray) -> None:
         """Average ticks (TICK_DTYPE rows) into RECORD_PERIOD_S bins of their own time stamps: a

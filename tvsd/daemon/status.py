@@ -62,10 +62,14 @@ class Status:
     points: PointsStatus
     recording: str | None  # the recording's path, while one runs
     aim_deg: Aim
-    faults: list[FaultEntry]
+    faults: list[FaultEntry]  # the newest daemon.status_faults (faults_list has the whole ring)
     fault_counts: dict[str, int]  # by kind since start (faults_clear keeps them)
     realtime: Realtime | None  # what the control thread asked the OS for and got (--realtime)
     rpc: dict[str, int]
+    # The newest measurement's age: beyond daemon.stale_after_ms `stale` is true and rps is the
+    # last value seen, not the shaft's speed now (a lost link; None before the first frame).
+    measurement_age_ms: float | None = None
+    stale: bool = False
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -82,14 +86,17 @@ class Status:
             "fault_counts": self.fault_counts,
             "realtime": asdict(self.realtime) if self.realtime is not None else None,
             "rpc": self.rpc,
+            "measurement_age_ms": self.measurement_age_ms,
+            "stale": self.stale,
         }
 
     def line(self) -> str:
         """One line for the foreground status print and systemd's STATUS=."""
         p99 = self.loop.jitter_p99_us
         p99 = p99 if math.isfinite(p99 or math.nan) else 0.0  # no tick yet
+        stale = " STALE" if self.stale else ""
         return (
-            f"{self.state:9s} {self.rps:6.2f} rev/s  jitter p99 {p99:6.1f} µs  "
+            f"{self.state:9s} {self.rps:6.2f} rev/s{stale}  jitter p99 {p99:6.1f} µs  "
             f"missed {self.loop.missed_ticks:4d}  points/s {self.points.per_s:5.1f}  "
             f"link {self.link['state']}  imu {self.imu['state']}  faults {len(self.faults)}"
         )

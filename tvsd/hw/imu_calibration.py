@@ -30,6 +30,9 @@ from tvsd.errors import DataFileError, TvsdError
 FORMAT, VERSION = "tvs-imu-calibration", 1
 # Datasheet: gyro total RMS noise 0.05 deg/s (at 100 Hz bandwidth); ~0.09 deg/s at 188 Hz.
 # A sensor at rest stays well under 10x that; a hand, a fan or a spinning motor does not.
+# The SIL daemon's twins keep their calibration beside its data (tvsd --sil --data-dir DIR):
+# their biases are not the board's, and a SIL run must never overwrite the board's file.
+SIL_FILE_NAME = "imu-calibration-sil.json"
 GYRO_STD_MAX_RAD_S = np.radians(0.5)
 GYRO_DRIFT_MAX_RAD_S = np.radians(0.2)  # mean of first half vs second half
 G_TOLERANCE = 0.1  # |accel| at rest within 10 % of g, else wrong range or not at rest

@@ -32,7 +32,8 @@ SYNC = b"\xa5R"
 RECORD = struct.Struct("<2sBHII")  # sync, kind, channel, length, crc32
 HEADER, CONFIG, CHANNEL, DATA, MARK, STATS = range(6)
 FORMAT_VERSION = 1
-SEGMENT_GLOB = "seg-*.tvsrec"
+SEGMENT_PREFIX = "seg-"
+SEGMENT_GLOB = f"{SEGMENT_PREFIX}*.tvsrec"
 
 # The convention `tvsctl export` relies on: the loop's decimated signals in SI units.
 LOOP_CHANNEL = "loop"
@@ -60,4 +61,4 @@ def record_at(data: bytes, pos: int) -> tuple[int, int, bytes, int] | None:
 
 
 def segment_name(index: int) -> str:
-    return f"seg-{index:05d}.tvsrec"
+    return f"{SEGMENT_PREFIX}{index:05d}.tvsrec"

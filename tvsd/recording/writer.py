@@ -39,7 +39,7 @@ from tvsd.recording.format import (
     HEADER,
     MAGIC,
     MARK,
-    SEGMENT_GLOB,
+    SEGMENT_PREFIX,
     STATS,
     encode,
     segment_name,
@@ -102,12 +102,10 @@ class Recorder:
         segment_bytes: int = 256 << 20,
     ) -> None:
         self.directory = Path(directory)
-        if self.directory.is_dir() and any(self.directory.glob(SEGMENT_GLOB)):
+        self._dirfd = _open_dir(self.directory)  # no-follow: a planted symlink is refused, not used
+        if any(name.startswith(SEGMENT_PREFIX) for name in os.listdir(self._dirfd)):
+            os.close(self._dirfd)
             raise UsageError(f"{self.directory}: already holds a recording; choose a new directory")
-        try:
-            self.directory.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise UsageError(f"{self.directory}: cannot create the recording folder: {exc.strerror}") from exc
         self.flush_interval_s = flush_interval_s
         self.fsync_interval_s = fsync_interval_s
         self.max_pending_bytes = max_pending_bytes
@@ -127,6 +125,7 @@ class Recorder:
         try:  # the first segment synchronously: a bad directory fails here, not in the thread
             self._open_segment()
         except OSError as exc:
+            os.close(self._dirfd)
             raise UsageError(f"{self.directory}: cannot start a recording: {exc.strerror}") from exc
         self._thread = threading.Thread(target=self._writer, name="tvsd-recorder", daemon=True)
         self._thread.start()
@@ -243,8 +242,8 @@ class Recorder:
             os.fsync(fd)
             os.close(fd)
         self._segment += 1
-        path = self.directory / segment_name(self._segment)
-        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o640)
+        flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+        self._fd = os.open(segment_name(self._segment), flags, 0o640, dir_fd=self._dirfd)
         started = datetime.fromtimestamp(self.started_unix, UTC).isoformat()
         header = {"format": FORMAT_VERSION, "segment": self._segment, "started_utc": started}
         head = bytearray(MAGIC)
@@ -257,11 +256,7 @@ class Recorder:
         os.write(self._fd, head)
         os.fsync(self._fd)
         self._segment_size = len(head)
-        dirfd = os.open(self.directory, os.O_RDONLY)  # make the new file's name itself durable
-        try:
-            os.fsync(dirfd)
-        finally:
-            os.close(dirfd)
+        os.fsync(self._dirfd)  # make the new file's name itself durable
 
     def _drop_counts(self) -> tuple[int, ...]:
         with self._lock:
@@ -279,6 +274,8 @@ class Recorder:
             self._closed = True
             self._queue.put(None)
         self._thread.join()
+        with contextlib.suppress(OSError):
+            os.close(self._dirfd)
         if self._fd < 0:
             return
         if self.error is None:
@@ -293,6 +290,36 @@ class Recorder:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _open_dir(directory: Path) -> int:
+    """The recording directory opened without following a symlink (created if missing, its
+    parents too): files go in by this descriptor, so a link swapped in later is not followed."""
+    try:
+        directory.parent.mkdir(parents=True, exist_ok=True)
+        with contextlib.suppress(FileExistsError):
+            os.mkdir(directory, 0o750)
+        return os.open(directory, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except OSError as exc:
+        if directory.is_symlink():
+            raise UsageError(
+                f"{directory}: is a symbolic link; recordings are written only into real "
+                "directories (remove the link, or choose another directory)"
+            ) from exc
+        raise UsageError(f"{directory}: cannot create the recording folder: {exc.strerror}") from exc
+
+
+def new_recording_dir(parent: Path, stem: str) -> Path:
+    """A new, empty directory `parent/stem` (or stem-2, stem-3 ...), made by this call: never one
+    that was there before, a symlink planted under the predictable name included."""
+    for k in range(1, 1000):
+        path = parent / (stem if k == 1 else f"{stem}-{k}")
+        try:
+            os.mkdir(path, 0o750)  # fails on anything already there, a dangling symlink too
+        except FileExistsError:
+            continue
+        return path
+    raise UsageError(f"{parent}: {stem} and 998 more names are taken; clean up the data directory")
 
 
 def _channel_payload(ch: Channel) -> bytes:

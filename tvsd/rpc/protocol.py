@@ -19,7 +19,13 @@ code   name             meaning
 -32603 INTERNAL_ERROR   a method raised something unexpected: a bug, logged with its traceback
 -32001 DEVICE_ERROR     the scanner (MCU, motor, IMU, laser) refused or failed the request
 -32002 STATE_ERROR      the request does not fit the daemon's state (e.g. aim while not scanning)
+-32003 LIMIT_ERROR      a bound of the server: a batch too long, a reply too large, too many
+                        connections (``error.data`` names the limit and its value)
 ====== ================ =====================================================================
+
+Numbers: a parameter typed float must be finite and within ±``MAX_FLOAT`` (1e300: a 400-digit
+integer is refused as -32602, not a float overflow); one typed int within ±2**53 (what every
+JSON reader keeps exactly). An ``id`` must be finite too (``1e999`` parses to infinity).
 """
 
 from __future__ import annotations
@@ -41,6 +47,11 @@ INVALID_PARAMS = -32602
 INTERNAL_ERROR = -32603
 DEVICE_ERROR = -32001
 STATE_ERROR = -32002
+LIMIT_ERROR = -32003
+
+MAX_INT = 2**53  # JSON's safe integers: beyond them readers disagree
+MAX_FLOAT = 1e300  # far beyond any physical parameter, well inside a double
+MAX_ID_CHARS = 256  # an id is echoed in the reply: a long one must not multiply a batch's reply
 
 Method = Callable[..., Awaitable[object]]
 
@@ -73,12 +84,28 @@ _KINDS: dict[type, tuple[str, tuple[type, ...]]] = {
 }
 
 
+def _number_problem(value: object, allowed: tuple[type, ...]) -> str | None:
+    """Why a number is out of the bounds every parameter has (module docstring), or None."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int):
+        if float in allowed and int not in allowed:
+            return None if abs(value) <= MAX_FLOAT else f"must be a number within ±{MAX_FLOAT:g}"
+        return None if abs(value) <= MAX_INT else f"must be an integer within ±2**53 ({MAX_INT})"
+    if isinstance(value, float):
+        ok = math.isfinite(value) and abs(value) <= MAX_FLOAT
+        return None if ok else f"must be a finite number within ±{MAX_FLOAT:g}"
+    return None
+
+
 def _json_type(value: object) -> str:
     names = {bool: "boolean", int: "integer", float: "number", str: "string", list: "array", dict: "object"}
     return "null" if value is None else names.get(type(value), type(value).__name__)
 
 
 def _seen(value: object) -> str:
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > MAX_INT:
+        return f"integer of about {int(value.bit_length() * 0.30103) + 1} digits"  # not its 400 digits
     text = json.dumps(value)
     return f"{_json_type(value)} {text if len(text) <= 40 else text[:37] + '...'}"
 
@@ -181,6 +208,9 @@ class Signature:
             raise self._error(
                 f"parameter {p.name!r} must be {want} ({_hint_name(p.hint)}), got {_seen(value)}"
             )
+        problem = _number_problem(value, allowed)
+        if problem is not None:
+            raise self._error(f"parameter {p.name!r} {problem}, got {_seen(value)}")
         if float in allowed and int not in allowed and type(value) is int:
             return float(value)
         return value
@@ -236,8 +266,17 @@ def decode(line: bytes) -> object:
 
 
 def valid_id(req: Mapping[str, object]) -> object:
+    """The request's id if it is one a reply can carry (a string, or a finite number), else None."""
     rid = req.get("id")
-    return rid if isinstance(rid, (str, int, float)) and not isinstance(rid, bool) else None
+    if isinstance(rid, bool) or not isinstance(rid, (str, int, float)):
+        return None
+    if isinstance(rid, float) and not math.isfinite(rid):
+        return None  # 1e999 parses to infinity, which no JSON reply can hold
+    if isinstance(rid, int) and abs(rid) > MAX_INT:
+        return None
+    if isinstance(rid, str) and len(rid) > MAX_ID_CHARS:
+        return None
+    return rid
 
 
 def parse_request(msg: object) -> Request:
@@ -257,7 +296,10 @@ def parse_request(msg: object) -> Request:
     if "params" in msg and not isinstance(params, (list, dict)):
         raise bad(f'"params" must be an array or an object, got {_seen(params)}')
     if "id" in msg and msg["id"] is not None and valid_id(msg) is None:
-        raise bad(f'"id" must be a string, a number or null, got {_seen(msg["id"])}')
+        raise bad(
+            f'"id" must be a string (at most {MAX_ID_CHARS} characters), a finite number within '
+            f"±2**53 or null, got {_seen(msg['id'])}"
+        )
     return Request(method, params, msg.get("id"), "id" not in msg)
 
 

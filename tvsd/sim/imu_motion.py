@@ -263,9 +263,17 @@ class PlantMotion:
         lever_m: float = 0.01,
         leak_tau_s: float = 1.0,
         hold_s: float = 0.1,
+        still_below_rad_s: float = 0.0,
     ) -> None:
-        if axis not in (0, 1, 2) or leak_tau_s <= 0 or hold_s < 0:
-            raise UsageError("PlantMotion: axis 0, 1 or 2, leak_tau_s > 0, hold_s >= 0")
+        if axis not in (0, 1, 2) or leak_tau_s <= 0 or hold_s < 0 or still_below_rad_s < 0:
+            raise UsageError(
+                "PlantMotion: axis 0, 1 or 2, leak_tau_s > 0, hold_s >= 0, still_below_rad_s >= 0"
+            )
+        # The vibration comes from the turning aperture: with the shaft slower than this the frame
+        # feels none of the plant's disturbance (0: always, as a bench of the disturbance alone).
+        # The plant's Δv runs at rest too; passed on, it moved the PL twin by ~4°/s at 0 rev/s and
+        # the calibration's motion check refused every SIL calibration.
+        self.still_below_rad_s = still_below_rad_s
         self.plant, self.scale = plant, scale
         self.gamma_rad, self.axis, self.lever_m = gamma_rad, axis, lever_m
         self.leak_tau_s, self.hold_s = leak_tau_s, hold_s
@@ -287,7 +295,7 @@ class PlantMotion:
         if s[0] < self._s_last - 1e-12:
             raise ValueError(f"motion sampled backwards in time ({s[0]} < {self._s_last})")
         h = self.plant.history(self._s_last)
-        ends, accel = h.t, h.disturbance * self.scale
+        ends, accel = h.t, h.disturbance * self.scale * (np.abs(h.omega) >= self.still_below_rad_s)
         stop = ends[-1] + self.hold_s  # past it the plant is not running: no acceleration
         tau, omega, pos = self.leak_tau_s, self._omega, self._s_last
         rate = np.empty(s.size)
@@ -305,7 +313,8 @@ class PlantMotion:
             rate[i] = omega
         self._s_last, self._omega = pos, omega
         now = h.at(s)
-        alpha = np.where(s <= stop, now.disturbance * self.scale, 0.0)
+        turning = np.abs(now.omega) >= self.still_below_rad_s
+        alpha = np.where((s <= stop) & turning, now.disturbance * self.scale, 0.0)
         self._shaft = float(now.omega[-1])
         return MotionSample(
             _axis_vector(rate, self.axis), _specific_force(alpha, self.gamma_rad, self.lever_m)
@@ -345,10 +354,13 @@ def plant_pair(
     axis: int = 0,
     pl_coupling: float = 0.3,
     lever_m: float = 0.01,
+    still_below_rps: float = 0.0,
 ) -> dict[str, PlantMotion]:
     """Sources for both sensors from one running plant: SA as the plant's disturbance, PL the
-    same scaled by `pl_coupling` (the frame's attenuation, as synthetic_pair)."""
+    same scaled by `pl_coupling` (the frame's attenuation, as synthetic_pair); both at rest while
+    the shaft turns slower than `still_below_rps` (PlantMotion.still_below_rad_s)."""
+    still = 2 * math.pi * still_below_rps
     return {
-        "pl": PlantMotion(plant, pl_coupling, gamma_rad, axis, lever_m),
-        "sa": PlantMotion(plant, 1.0, gamma_rad, axis, lever_m),
+        "pl": PlantMotion(plant, pl_coupling, gamma_rad, axis, lever_m, still_below_rad_s=still),
+        "sa": PlantMotion(plant, 1.0, gamma_rad, axis, lever_m, still_below_rad_s=still),
     }
