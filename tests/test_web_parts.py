@@ -3,6 +3,7 @@ browser reads from its cursor, the IMU spectra and their shaft orders, the `web:
 
 from __future__ import annotations
 
+import json
 import math
 import os
 from pathlib import Path
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 
 from tvsd.config import WebSettings, load_config
-from tvsd.daemon.web.feed import Cursor, LiveFeed
+from tvsd.daemon.web.feed import Cursor, LiveFeed, decode_points, encode
 from tvsd.daemon.web.reports import find_reports, resolve
 from tvsd.daemon.web.spectra import ImuWindow
 from tvsd.errors import ConfigError, UsageError
@@ -92,14 +93,25 @@ def test_a_browser_that_skipped_frames_gets_what_it_missed_and_nothing_grows():
     missed = feed.frame(slow)
     assert [row[1] for row in missed["samples"]] == [20.0, 21.0, 22.0]
     assert missed["samples"][0][3] is None  # a NaN p99 (no tick yet) is null, not NaN, in JSON
-    assert [p[0] for p in missed["points"]] == [0.0, 1.0, 2.0]
-    assert missed["points"][0][3] == 0.5  # σ in mm: √(0.3² + 0.4²)
+    pts = decode_points(missed["points"])
+    assert pts[:, 0].tolist() == [0.0, 1.0, 2.0] and pts[:, 4].tolist() == [2, 2, 2]  # x, flags
+    assert abs(pts[0, 3] - 0.5) < 1e-6  # σ in mm: √(0.3² + 0.4²)
     assert feed.frame(slow)["samples"] == []  # the cursor moved
     for t in range(3, 500):  # far more than is kept: the series stay bounded
         feed.sample(_status(t, 25.0), now=1000.0 + t)
         feed.point(_point(float(t)))
     assert len(feed.frame(slow)["samples"]) == 50  # 10 s at 5 Hz
-    assert len(feed.frame(Cursor(), hello=True)["points"]) == 100
+    assert len(decode_points(feed.frame(Cursor(), hello=True)["points"])) == 100
+
+
+def test_a_frame_splices_its_encoded_spectra_in_once():
+    feed = LiveFeed(history_s=10, push_hz=5, cloud_points=100)
+    feed.sample(_status(1, 25.0))
+    feed.set_spectra('{"f":[0.0,2.0],"orders":[25.0]}')
+    cur = Cursor()
+    first = json.loads(encode(feed.frame(cur, hello=True)))
+    assert first["spectra"]["orders"] == [25.0] and first["status"]["state"] == "scanning"
+    assert "spectra" not in json.loads(encode(feed.frame(cur)))
 
 
 def test_faults_are_sent_when_they_change_only():

@@ -16,6 +16,7 @@ import pytest
 from conftest import until
 
 from tvsd.config import WebSettings
+from tvsd.daemon.web.feed import decode_points
 from tvsd.daemon.web.server import WebUnavailable, WebView
 from tvsd.scan.points import Point
 
@@ -124,7 +125,8 @@ def test_a_browser_gets_a_hello_then_frames_at_the_push_rate_and_new_points(tmp_
                 while time.monotonic() - t0 < 2.0:
                     frames.append(json.loads((await ws.receive(timeout=10)).data))
                 assert len(frames) >= 3
-                assert sum(len(f["points"]) for f in frames) == 7
+                xs = [x for f in frames if f["points"] for x in decode_points(f["points"])[:, 0]]
+                assert xs == sorted(xs) and len(xs) == 7  # each point once, in order
                 assert [f["faults"] for f in frames if "faults" in f][-1][0]["kind"] == "control_overrun"
                 rps = [row[1] for f in frames for row in f["samples"]]
                 assert rps == sorted(rps) and len(set(rps)) == len(rps)  # each sample once, in order

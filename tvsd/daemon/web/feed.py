@@ -10,6 +10,8 @@ one, and nothing piles up for it anywhere.
 
 from __future__ import annotations
 
+import base64
+import json
 import math
 import time
 from collections import deque
@@ -68,16 +70,15 @@ class PointRing:
         row[0], row[1], row[2], row[3], row[4] = p.x, p.y, p.z, sigma_m * 1e3, p.flags
         self.seq += 1
 
-    def since(self, seq: int) -> list[list[float]]:
+    def since(self, seq: int) -> str:
+        """The points after `seq`, oldest first, as base64 of little-endian float32 rows
+        (POINT_COLS): 0.1 µm at 1 m, and 20 B a point where JSON numbers took ~45 and 30× the
+        time to write (17 ms for 5000 on the event loop; this is < 1 ms)."""
         n = min(self.seq - seq, self.size)
         if n <= 0:
-            return []
+            return ""
         idx = np.arange(self.seq - n, self.seq) % self.size
-        rows = self.rows[idx]
-        return [
-            [round(x, 5), round(y, 5), round(z, 5), float(f"{s:.3g}"), int(fl)]
-            for x, y, z, s, fl in rows.tolist()
-        ]
+        return base64.b64encode(self.rows[idx].astype("<f4").tobytes()).decode("ascii")
 
 
 class LiveFeed:
@@ -86,7 +87,7 @@ class LiveFeed:
         self.points = PointRing(cloud_points)
         self.status: dict[str, Any] = {}
         self.faults: list[dict[str, Any]] = []
-        self.spectra: dict[str, Any] | None = None
+        self.spectra_json: str | None = None  # encoded once, not once per browser
         self.spectra_seq = 0
         self.floor: dict[str, Any] | None = None
         self.floor_seq = 0
@@ -128,9 +129,10 @@ class LiveFeed:
     def point(self, p: Point) -> None:
         self.points.add(p)
 
-    def set_spectra(self, spectra: dict[str, Any] | None) -> None:
-        if spectra is not None:
-            self.spectra = spectra
+    def set_spectra(self, spectra_json: str | None) -> None:
+        """A new spectrum (tvsd.daemon.web.spectra.ImuWindow.spectra, as JSON text)."""
+        if spectra_json is not None:
+            self.spectra_json = spectra_json
             self.spectra_seq += 1
 
     def set_floor(self, floor: dict[str, Any] | None, seq: int) -> None:
@@ -146,7 +148,8 @@ class LiveFeed:
 
     # --- read by each browser -------------------------------------------------------------------------
     def frame(self, cur: Cursor, *, hello: bool = False) -> dict[str, Any]:
-        """What is new for the browser at `cur` (everything kept, for `hello`); advances `cur`."""
+        """What is new for the browser at `cur` (everything kept, for `hello`); advances `cur`.
+        Parts already encoded as JSON text are under "_raw" (see `encode`)."""
         out: dict[str, Any] = {"type": "hello" if hello else "frame", "t_unix": round(time.time(), 3)}
         if hello:
             out["config"] = self.config
@@ -159,8 +162,8 @@ class LiveFeed:
         if hello or faults_key != cur.faults:
             out["faults"] = self.faults
             cur.faults = faults_key
-        if self.spectra is not None and cur.spectra != self.spectra_seq:
-            out["spectra"] = self.spectra
+        if self.spectra_json is not None and cur.spectra != self.spectra_seq:
+            out["_raw"] = {"spectra": self.spectra_json}
             cur.spectra = self.spectra_seq
         if self.floor is not None and cur.floor != self.floor_seq:
             out["floor"] = self.floor
@@ -169,6 +172,20 @@ class LiveFeed:
             out["reports"] = self.reports
             cur.reports = self.reports_seq
         return out
+
+
+def encode(frame: dict[str, Any]) -> str:
+    """A frame as one JSON object, its pre-encoded parts spliced in as they are."""
+    raw = frame.pop("_raw", None)
+    text = json.dumps(frame, separators=(",", ":"), allow_nan=False)
+    if raw:
+        text = text[:-1] + "".join(f",{json.dumps(k)}:{v}" for k, v in raw.items()) + "}"
+    return text
+
+
+def decode_points(b64: str) -> np.ndarray:
+    """The rows `PointRing.since` encoded: (n, len(POINT_COLS)) float32."""
+    return np.frombuffer(base64.b64decode(b64), dtype="<f4").reshape(-1, len(POINT_COLS))
 
 
 def _num(x: Any) -> float | None:

@@ -36,7 +36,7 @@ from urllib.parse import urlsplit
 from aiohttp import WSMsgType, web
 
 from tvsd.config import WebSettings
-from tvsd.daemon.web.feed import Cursor, LiveFeed
+from tvsd.daemon.web.feed import Cursor, LiveFeed, encode
 from tvsd.daemon.web.floor import FloorProbe
 from tvsd.daemon.web.reports import content_type, find_reports, resolve
 from tvsd.daemon.web.spectra import ImuWindow
@@ -114,6 +114,7 @@ class WebView:
         self._runner: web.AppRunner | None = None
         self._tasks: list[asyncio.Task[None]] = []
         self._reports_task: asyncio.Task[None] | None = None
+        self._spectra_task: asyncio.Task[None] | None = None
         self._socket_inode: int | None = None
         self.counts = {
             "ticks": 0,
@@ -179,8 +180,9 @@ class WebView:
     async def close(self) -> None:
         for b in list(self._browsers):
             self._drop(b, count=False)
-        for task in [*self._tasks, *([self._reports_task] if self._reports_task else [])]:
-            task.cancel()
+        for task in [*self._tasks, self._reports_task, self._spectra_task]:
+            if task is not None:
+                task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
         self._tasks = []
         await self.floor.close()
@@ -210,9 +212,9 @@ class WebView:
             self._keep(self._late, max(0.0, now - deadline))
             self.feed.sample(self._status())
             self.feed.set_floor(self.floor.result, self.floor.seq)
-            if self._browsers and now >= spectra_due:
+            if self._browsers and now >= spectra_due and self._spectra_task is None:
                 spectra_due = now + SPECTRA_PERIOD_S
-                self.feed.set_spectra(self.imu.spectra(self.feed.status.get("rps") or 0.0))
+                self._spectra_task = asyncio.create_task(self._spectra(self.feed.status.get("rps") or 0.0))
             if self._browsers and now >= reports_due and self._reports_task is None:
                 reports_due = now + REPORTS_PERIOD_S
                 self._reports_task = asyncio.create_task(self._scan_reports())
@@ -235,6 +237,17 @@ class WebView:
         if len(series) > 500:
             del series[:250]
 
+    async def _spectra(self, rps: float) -> None:
+        """The Welch spectra in a worker thread (FFTs release the GIL: 3–5 ms of work, not on the
+        loop); the samples are copied here first, on the loop's thread that writes them."""
+        try:
+            samples = self.imu.snapshot()
+            spectra = await asyncio.to_thread(self.imu.spectra_of, samples, rps)
+            if spectra is not None:
+                self.feed.set_spectra(await asyncio.to_thread(json.dumps, spectra, separators=(",", ":")))
+        finally:
+            self._spectra_task = None
+
     async def _scan_reports(self) -> None:
         try:
             self.feed.set_reports(await asyncio.to_thread(find_reports, self.data_dir))
@@ -250,9 +263,7 @@ class WebView:
                     await b.wake.wait()
                 b.wake.clear()
                 t0 = time.thread_time()
-                data = json.dumps(
-                    self.feed.frame(b.cursor, hello=hello), separators=(",", ":"), allow_nan=False
-                )
+                data = encode(self.feed.frame(b.cursor, hello=hello))
                 if not hello:
                     self._keep(self._frame_work, time.thread_time() - t0)
                 hello = False
@@ -316,7 +327,9 @@ class WebView:
         return ws
 
     async def _snapshot(self, request: web.Request) -> web.Response:
-        return web.json_response(self.feed.frame(Cursor(), hello=True))
+        return web.Response(
+            text=encode(self.feed.frame(Cursor(), hello=True)), content_type="application/json"
+        )
 
     async def _stats(self, request: web.Request) -> web.Response:
         return web.json_response(self.stats())

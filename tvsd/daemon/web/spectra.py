@@ -57,13 +57,21 @@ class ImuWindow:
         start = count % self.size
         return np.concatenate((ring[start:], ring[:start]))
 
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """Both sensors' samples (copies): taken on the thread that pushes."""
+        return {s: self.samples(s) for s in SENSORS}
+
     def spectra(self, rps: float) -> dict[str, Any] | None:
+        return self.spectra_of(self.snapshot(), rps)
+
+    def spectra_of(self, samples: dict[str, np.ndarray], rps: float) -> dict[str, Any] | None:
         """{"f": Hz, "psd_db": {sensor: {channel: dB}}, "orders": Hz, "rps", "seconds", "nperseg"},
-        or None before any sensor has a full segment. dB re 1 (rad/s)²/Hz (gyro) or (m/s²)²/Hz."""
+        or None before any sensor has a full segment. dB re 1 (rad/s)²/Hz (gyro) or (m/s²)²/Hz.
+        Any thread: reads only `samples` and settings."""
         out: dict[str, dict[str, list[float]]] = {}
         freqs: np.ndarray | None = None
         for sensor in SENSORS:
-            x = self.samples(sensor)
+            x = samples[sensor]
             if len(x) < self.nperseg:
                 continue
             freqs, p = welch(x, fs=self.rate_hz, nperseg=self.nperseg, axis=0)

@@ -35,6 +35,15 @@ function connect() {
   };
 }
 
+function decodePoints(b64) {
+  // rows of little-endian float32 (config.point_cols: x y z m, σ mm, flags), base64
+  const bin = atob(b64), bytes = new Uint8Array(bin.length);
+  for (let i = 0; i < bin.length; i++) bytes[i] = bin.charCodeAt(i);
+  const v = new Float32Array(bytes.buffer), n = tvs.config ? tvs.config.point_cols.length : 5, rows = [];
+  for (let i = 0; i + n <= v.length; i += n) rows.push(Array.from(v.subarray(i, i + n)));
+  return rows;
+}
+
 function take(f) {
   if (f.type === "hello") {
     tvs.config = f.config; tvs.samples = []; tvs.points = [];
@@ -45,8 +54,8 @@ function take(f) {
   for (const row of f.samples || []) tvs.samples.push(row);
   const newest = tvs.samples.length ? tvs.samples[tvs.samples.length - 1][0] : 0;
   while (tvs.samples.length && tvs.samples[0][0] < newest - keepS) tvs.samples.shift();
-  if (f.points && f.points.length) {
-    tvs.points.push(...f.points);
+  if (f.points) {
+    tvs.points.push(...decodePoints(f.points));
     const cap = tvs.config ? tvs.config.cloud_points : 5000;
     if (tvs.points.length > cap) tvs.points.splice(0, tvs.points.length - cap);
   }
