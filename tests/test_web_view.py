@@ -251,6 +251,16 @@ def test_the_page_in_a_real_browser(live):
             "the fault state",
             ok=lambda s: s == "fault",
         )
+        driver.get(f"{url}report?path=doctor-emps/report.md")  # the listed report, rendered
+        wait_for(
+            lambda: js("return document.querySelector('h1')?.textContent"),
+            10,
+            "the report's title",
+            ok=lambda t: t == "Model doctor: emps",
+        )
+        assert js("return document.querySelector('article code').textContent") == "friction_asymmetry"
+        driver.back()
+        wait_for(lambda: js("return window.tvs && tvs.frames"), 20, "the live view again")
         shot = tmp / "web-view.png"
         driver.save_screenshot(str(shot))
         print(f"screenshot: {shot}")

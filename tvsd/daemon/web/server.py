@@ -148,6 +148,7 @@ class WebView:
         app.router.add_get("/api/snapshot", self._snapshot)
         app.router.add_get("/api/stats", self._stats)
         app.router.add_get("/reports/{path:.+}", self._report_file)
+        app.router.add_get("/favicon.ico", _no_icon)
         app.router.add_route("*", "/{tail:.*}", _read_only)
         runner = web.AppRunner(app, access_log=None, handle_signals=False)
         await runner.setup()
@@ -378,6 +379,10 @@ async def _headers(request: web.Request, handler: Callable[[web.Request], Any]) 
     if not response.prepared:
         response.headers.update(SECURITY_HEADERS)
     return response
+
+
+async def _no_icon(request: web.Request) -> web.Response:
+    return web.Response(status=204)
 
 
 async def _read_only(request: web.Request) -> web.Response:
