@@ -17,7 +17,7 @@ from conftest import until
 
 from tvsd.config import WebSettings
 from tvsd.daemon.web.feed import decode_points
-from tvsd.daemon.web.server import WebUnavailable, WebView
+from tvsd.daemon.web.server import HIGH_WATER, WebUnavailable, WebView
 from tvsd.scan.points import Point
 
 
@@ -163,7 +163,7 @@ def test_a_browser_that_stops_reading_is_dropped_and_holds_a_bounded_buffer(tmp_
     its 4 KiB floor): its 20 000-point hello (~0.8 MB) cannot go out, so its sender waits on the
     socket. It is dropped once it has held that frame for stall_s (3 s), while a reading browser's
     frames keep coming (no gap as long as stall_s: the push never waits for the slow one), and what
-    the server buffered for it stays within the transport's two 64 KiB marks and one frame."""
+    the server buffered for it stays within the transport's high-water mark (64 KiB) and one frame."""
 
     async def main() -> None:
         view, _ = _view(tmp_path, stall_s=3.0, send_buffer_kib=4, cloud_points=20000)
@@ -195,7 +195,7 @@ def test_a_browser_that_stops_reading_is_dropped_and_holds_a_bounded_buffer(tmp_
             await view.close()
         assert stats["dropped"] == 1, stats
         assert gaps and max(gaps) < 3.0, gaps
-        assert stats["max_buffered_bytes"] <= 2 * 65536 + stats["max_frame_bytes"], stats
+        assert stats["max_buffered_bytes"] <= HIGH_WATER + stats["max_frame_bytes"], stats
 
     asyncio.run(main())
 

@@ -11,7 +11,7 @@ A browser can never slow the daemon. One task (`_tick`) samples the daemon's sta
 its cursor and awaits the socket itself. A sender still busy with its previous frame is skipped
 (its next frame carries what it missed); one busy for longer than `stall_s` is dropped. So per
 browser there is at most one frame in flight: its kernel send buffer (`send_buffer_kib`), the
-transport's 64 KiB high-water mark and one frame — no queue. The IMU window and the point ring
+transport's high-water mark (HIGH_WATER, 64 KiB) and one frame — no queue. The IMU window and the point ring
 take the daemon's data by copy on the loop's thread, O(batch).
 """
 
@@ -44,6 +44,7 @@ from tvsd.errors import EXIT_UNAVAILABLE, TvsdError
 from tvsd.scan.points import Point
 
 SPECTRA_PERIOD_S = 1.0
+HIGH_WATER = 65536  # bytes a browser's transport holds before its sender waits
 REPORTS_PERIOD_S = 10.0
 STATIC_TYPES = {".html": "text/html", ".js": "text/javascript", ".css": "text/css"}
 SECURITY_HEADERS = {
@@ -310,11 +311,16 @@ class WebView:
             raise web.HTTPServiceUnavailable(
                 text=f"{self.settings.max_clients} browsers are watching already (web.max_clients)"
             )
-        ws = web.WebSocketResponse(max_msg_size=4096, heartbeat=None)
+        # writer_limit 1: the sender waits for the transport after every frame it finds above its
+        # high-water mark (aiohttp's default waits only every 256 KiB written)
+        ws = web.WebSocketResponse(max_msg_size=4096, heartbeat=None, writer_limit=1)
         await ws.prepare(request)
-        sock = request.transport.get_extra_info("socket") if request.transport is not None else None
-        if sock is not None:
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.settings.send_buffer_kib * 1024)
+        transport = request.transport
+        if transport is not None:
+            transport.set_write_buffer_limits(high=HIGH_WATER)
+            sock = transport.get_extra_info("socket")
+            if sock is not None:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.settings.send_buffer_kib * 1024)
         b = _Browser(ws, request)
         self._browsers.add(b)
         b.sender = asyncio.create_task(self._send(b), name="web-send")
