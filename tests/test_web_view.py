@@ -52,6 +52,18 @@ web:
 """
 
 
+# The fail-safe times relaxed: what is tested here is the page, and on this shared 2-core machine
+# an event-loop stall past the scanner's 50 ms watchdog (tests/test_daemon.py checks that one) is
+# common enough to latch a fault before a scan gets going.
+RELAXED = {
+    "sil_profile: sil.yaml": f"sil_profile: {ROOT / 'config' / 'sil.yaml'}",
+    "  watchdog_ms: 50 ": "  watchdog_ms: 1000 ",
+    "  link_timeout_ms: 40 ": "  link_timeout_ms: 800 ",
+    "  link_lost_ms: 50 ": "  link_lost_ms: 1000 ",
+    "  lost_margin_s: 0.1 ": "  lost_margin_s: 1.0 ",
+}
+
+
 def rpc(sock: Path, method: str, **params: object) -> dict:
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
         s.connect(str(sock))
@@ -72,9 +84,10 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, str, 
     tmp = tmp_path_factory.mktemp("live")
     cfg = tmp / "tvsd.yaml"
     text = (ROOT / "config" / "tvsd.yaml").read_text()
-    cfg.write_text(
-        text.replace("sil_profile: sil.yaml", f"sil_profile: {ROOT / 'config' / 'sil.yaml'}") + WEB
-    )
+    for line, relaxed in RELAXED.items():
+        assert line in text, line
+        text = text.replace(line, relaxed)
+    cfg.write_text(text + WEB)
     sock, data, log = tmp / "run" / "tvsd.sock", tmp / "data", tmp / "tvsd.log"
     report = data / "doctor-emps" / "report.md"  # what `tvsctl analyze --report` leaves
     report.parent.mkdir(parents=True)
@@ -256,7 +269,7 @@ def test_the_page_in_a_real_browser(live):
         )
         driver.get(f"{url}report?path=doctor-emps/report.md")  # the listed report, rendered
         wait_for(
-            lambda: js("return document.querySelector('h1')?.textContent"),
+            lambda: js("return document.querySelector('article h1')?.textContent"),
             10,
             "the report's title",
             ok=lambda t: t == "Model doctor: emps",

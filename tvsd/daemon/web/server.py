@@ -23,43 +23,34 @@ import json
 import math
 import os
 import socket
-import stat
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
 
 from tvsd.config import WebSettings
 from tvsd.daemon.web.feed import Cursor, LiveFeed, encode
 from tvsd.daemon.web.floor import FloorProbe
+from tvsd.daemon.web.http import (
+    WebUnavailable,
+    no_icon,
+    read_only,
+    remove_stale,
+    same_origin,
+    security_headers,
+    static_files,
+)
 from tvsd.daemon.web.reports import content_type, find_reports, resolve
 from tvsd.daemon.web.spectra import ImuWindow
-from tvsd.errors import EXIT_UNAVAILABLE, TvsdError
 from tvsd.scan.points import Point
 
 SPECTRA_PERIOD_S = 1.0
 HIGH_WATER = 65536  # bytes a browser's transport holds before its sender waits
 REPORTS_PERIOD_S = 10.0
-STATIC_TYPES = {".html": "text/html", ".js": "text/javascript", ".css": "text/css"}
-SECURITY_HEADERS = {
-    "Content-Security-Policy": "default-src 'self'; img-src 'self' data:; connect-src 'self'; "
-    "frame-ancestors 'none'; form-action 'none'",
-    "X-Content-Type-Options": "nosniff",
-    "Referrer-Policy": "no-referrer",
-    "Cache-Control": "no-store",
-}
-
-
-class WebUnavailable(TvsdError, OSError):
-    """The live view cannot listen where it was configured to."""
-
-    exit_status = EXIT_UNAVAILABLE
 
 
 @dataclass(eq=False)
@@ -76,16 +67,6 @@ class _Browser:
     def buffered(self) -> int:
         transport = self.request.transport
         return transport.get_write_buffer_size() if transport is not None else 0
-
-
-def _static_files() -> dict[str, tuple[bytes, str]]:
-    folder = resources.files("tvsd.daemon.web") / "static"
-    out = {}
-    for item in folder.iterdir():
-        suffix = Path(item.name).suffix
-        if suffix in STATIC_TYPES:
-            out[item.name] = (item.read_bytes(), STATIC_TYPES[suffix])
-    return out
 
 
 class WebView:
@@ -109,7 +90,7 @@ class WebView:
         self.feed = LiveFeed(settings.history_s, settings.push_hz, settings.cloud_points)
         self.imu = ImuWindow(imu_rate_hz, settings.spectrum_s)
         self.floor = FloorProbe(control_period_s, settings.floor_s, settings.floor_every_s)
-        self.static = _static_files()
+        self.static = static_files()
         self.url: str | None = None
         self._browsers: set[_Browser] = set()
         self._runner: web.AppRunner | None = None
@@ -141,7 +122,7 @@ class WebView:
 
     # --- lifecycle ------------------------------------------------------------------------------------
     async def start(self) -> None:
-        app = web.Application(middlewares=[_headers])
+        app = web.Application(middlewares=[security_headers])
         app.router.add_get("/", self._index)
         app.router.add_get("/report", self._report_page)
         app.router.add_get("/static/{name}", self._static)
@@ -149,14 +130,14 @@ class WebView:
         app.router.add_get("/api/snapshot", self._snapshot)
         app.router.add_get("/api/stats", self._stats)
         app.router.add_get("/reports/{path:.+}", self._report_file)
-        app.router.add_get("/favicon.ico", _no_icon)
-        app.router.add_route("*", "/{tail:.*}", _read_only)
+        app.router.add_get("/favicon.ico", no_icon)
+        app.router.add_route("*", "/{tail:.*}", read_only)
         runner = web.AppRunner(app, access_log=None, handle_signals=False)
         await runner.setup()
         s = self.settings
         try:
             if s.socket is not None:
-                await _remove_stale(s.socket)
+                await remove_stale(s.socket)
                 site: web.BaseSite = web.UnixSite(runner, str(s.socket))
                 await site.start()
                 os.chmod(s.socket, 0o660)
@@ -304,7 +285,7 @@ class WebView:
         return web.Response(body=body, content_type=ctype, charset="utf-8")
 
     async def _ws(self, request: web.Request) -> web.StreamResponse:
-        if not _same_origin(request):
+        if not same_origin(request):
             raise web.HTTPForbidden(text="the live view answers pages of its own origin only")
         if len(self._browsers) >= self.settings.max_clients:
             self.counts["refused"] += 1
@@ -373,50 +354,3 @@ class WebView:
         if path is None:
             raise web.HTTPNotFound(text=f"no report file {rel!r} in the data directory")
         return web.FileResponse(path, headers={"Content-Type": content_type(path)})
-
-
-@web.middleware
-async def _headers(request: web.Request, handler: Callable[[web.Request], Any]) -> web.StreamResponse:
-    try:
-        response: web.StreamResponse = await handler(request)
-    except web.HTTPException as exc:
-        exc.headers.update(SECURITY_HEADERS)
-        raise
-    if not response.prepared:
-        response.headers.update(SECURITY_HEADERS)
-    return response
-
-
-async def _no_icon(request: web.Request) -> web.Response:
-    return web.Response(status=204)
-
-
-async def _read_only(request: web.Request) -> web.Response:
-    if request.method in ("GET", "HEAD"):
-        raise web.HTTPNotFound(text=f"nothing at {request.path}: the live view is at /")
-    raise web.HTTPMethodNotAllowed(request.method, ["GET", "HEAD"], text="the live view is read-only")
-
-
-def _same_origin(request: web.Request) -> bool:
-    """A page of another origin may not read the stream (a browser sends Origin on WebSockets)."""
-    origin = request.headers.get("Origin")
-    if origin is None:
-        return True  # not a browser page (a tool, a test)
-    return urlsplit(origin).netloc == request.host
-
-
-async def _remove_stale(path: Path) -> None:
-    try:
-        st = path.lstat()
-    except FileNotFoundError:
-        return
-    if not stat.S_ISSOCK(st.st_mode):
-        raise WebUnavailable(f"{path} exists and is not a socket: remove it or choose another web.socket")
-    try:
-        _, writer = await asyncio.wait_for(asyncio.open_unix_connection(str(path)), 1.0)
-    except (ConnectionRefusedError, FileNotFoundError, TimeoutError):
-        with contextlib.suppress(FileNotFoundError):
-            path.unlink()
-        return
-    writer.close()
-    raise WebUnavailable(f"something answers on {path} already: stop it or choose another web.socket")

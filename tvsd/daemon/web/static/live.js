@@ -136,8 +136,8 @@ function drawLateness() {
   const x = rows.map((r) => r[0] - t1);
   Plot.draw($("lateness"), {
     series: [
-      { x, y: rows.map((r) => r[3]), color: COLORS.p99, label: "loop p99" },
-      { x, y: rows.map((r) => r[4]), color: COLORS.max, label: "loop max" },
+      { x, y: rows.map((r) => r[3]), color: COLORS.p99, label: "loop p99 since start" },
+      { x, y: rows.map((r) => r[4]), color: COLORS.max, label: "loop max since start" },
     ],
     hlines: fl ? [
       { y: fl.p99_us, color: COLORS.floor, label: "floor p99", dash: [6, 4] },
