@@ -158,6 +158,7 @@ class WebView:
         self._runner = runner
         self.floor.start()
         self._tasks = [asyncio.create_task(self._tick(), name="web-tick")]
+        self._reports_task = asyncio.create_task(self._scan_reports())  # listed in the first hello
         self.log(f"tvsd: live view on {self.url}")
 
     async def close(self) -> None:
