@@ -218,6 +218,53 @@ class DaemonSettings:
             )
 
 
+SOCKET_PATH_MAX = 107  # sun_path is 108 bytes on Linux, NUL included
+
+
+@dataclass(frozen=True, kw_only=True)
+class WebSettings:
+    """The `web:` section: the daemon's live, read-only web page (tvsd/daemon/web). Off unless
+    enabled; on loopback by default, or on a Unix socket for a reverse proxy (README "Live view")."""
+
+    enabled: bool = option(False, doc="serve the live view")
+    host: str = option("127.0.0.1", doc="address to bind (loopback: this machine only)")
+    port: int = option(8080, doc="TCP port (0: any free port, named in the daemon's log)", ge=0, le=65535)
+    socket: Path | None = option(None, doc="a Unix socket for a reverse proxy instead of host/port")
+    push_hz: float = option(5.0, doc="frames pushed to a browser at most this often", unit="Hz", gt=0, le=5)
+    history_s: float = option(60.0, doc="speed and lateness shown over the last", unit="s", ge=10, le=600)
+    cloud_points: int = option(5000, doc="newest points shown in the 3D view", ge=100, le=100000)
+    spectrum_s: float = option(4.0, doc="IMU samples per Welch spectrum", unit="s", ge=1, le=30)
+    max_clients: int = option(8, doc="browsers served at once (more get HTTP 503)", ge=1, le=64)
+    stall_s: float = option(
+        5.0, doc="a browser that has not taken a frame for this long is dropped", unit="s", gt=0, le=60
+    )
+    send_buffer_kib: int = option(
+        64, doc="kernel send buffer per browser: bounds what a non-reading client holds", unit="KiB", ge=4
+    )
+    floor_s: float = option(
+        1.0,
+        doc="the machine's floor (a bare sleep loop at the control rate) is measured this long",
+        unit="s",
+        gt=0,
+        le=10,
+    )
+    floor_every_s: float = option(60.0, doc="... this often (0: once at start)", unit="s", ge=0)
+
+    def __post_init__(self) -> None:
+        check(self)
+        if self.socket is not None:
+            if not self.socket.is_absolute():
+                raise FieldError("socket", f"{self.socket} is relative: give an absolute path")
+            if len(os.fsencode(self.socket)) > SOCKET_PATH_MAX:
+                raise FieldError("socket", f"{self.socket} is longer than {SOCKET_PATH_MAX} bytes")
+        if 0 < self.floor_every_s < 10 * self.floor_s:
+            raise FieldError(
+                "floor_every_s",
+                f"{self.floor_every_s:g} s would measure the floor more than a tenth of the time "
+                f"(floor_s {self.floor_s:g} s): use 0 or ≥ {10 * self.floor_s:g}",
+            )
+
+
 @dataclass(frozen=True, kw_only=True)
 class Config:
     plant: PlantParams = option(doc="drive parameters")
@@ -233,6 +280,7 @@ class Config:
     devices: DevicesConfig = option(DevicesConfig(), doc="hardware or SIL backend per device")
     mcu: McuSettings = option(McuSettings(), doc="the MCU: serial link, rates, fail-safe times")
     daemon: DaemonSettings = option(DaemonSettings(), doc="tvsd's own periods and limits")
+    web: WebSettings = option(WebSettings(), doc="the live web view (off by default)")
 
     @property
     def sil_or_default(self) -> SilConfig:

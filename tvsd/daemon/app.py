@@ -113,6 +113,17 @@ class Daemon:
         self.aim_deg = (60.0, 0.0)  # φ, γ: DoE B's middle target
         self.points = PointCounters()
         self._stop = asyncio.Event()
+        self.web: Any = None  # tvsd.daemon.web.server.WebView when cfg.web.enabled
+        if cfg.web.enabled:  # built now: aiohttp's import and the floor kernel's load hold the GIL
+            from tvsd.daemon.web.server import WebView
+
+            self.web = WebView(
+                cfg.web,
+                lambda: self.status().to_json(),
+                data_dir,
+                imu_rate_hz=cfg.imu.sample_rate_hz,
+                control_period_s=1.0 / cfg.control.rate_hz,
+            )
 
     @property
     def state(self) -> DaemonState:
@@ -171,6 +182,12 @@ class Daemon:
             await self.can.start()
         except Exception as exc:
             self._fault(FaultKind.CAN, f"CAN bridge: {exc}", "running without the CAN bridge")
+        if self.web is not None:
+            try:
+                await self.web.start()
+            except TvsdError as exc:
+                self.web = None
+                self._fault(FaultKind.WEB, f"live view: {exc}", "running without the live view")
 
     async def _initial_aim(self) -> None:
         """Once the axes are homed, point the laser at the configured aim."""
@@ -208,6 +225,8 @@ class Daemon:
             await self.imu.stop()
         await self.stop_recording()
         await self.can.close()
+        if self.web is not None:
+            await self.web.close()
         await self.rpc.close()
         self.runner.stop(timeout=2.0)
 
@@ -313,6 +332,8 @@ class Daemon:
             # pulse to point as time.monotonic() − t_mono on receipt.
             point = replace(computed, t_mono=self.drive.to_host(round(computed.t * self.drive.clock_hz)))
             self.points.published(point)
+            if self.web is not None:
+                self.web.point(point)
             record = point.to_json()
             self.rpc.publish("points", record)
             self.can.publish_point(record)
@@ -360,6 +381,8 @@ class Daemon:
             self._new_scan()  # compensated while the IMU is ok, flagged no_imu while it is not
 
     def _on_imu_batch(self, batch: Any) -> None:
+        if self.web is not None:
+            self.web.imu_batch(batch)
         if self.recording is not None:
             self.recording.imu_batch(batch.sensor, batch.k, batch.t, batch.accel, batch.gyro)
         if self.scan is not None and self.state == S.SCANNING:

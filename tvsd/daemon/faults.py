@@ -27,6 +27,7 @@ class FaultKind(enum.StrEnum):
     RECORDER = "recorder"  # the recording failed (disk full, I/O error)
     HOMING = "homing"  # the stepper axes did not home
     CONTROL = "control"  # any other fault code of the control thread
+    WEB = "web"  # the live view could not listen where configured
 
 
 # The control thread's latched faults: their kind, cause and what the safe state does.
