@@ -2,7 +2,11 @@
 
 Each command maps to the daemon method of the same name (``scan start`` → ``scan_start``, ...),
 takes --socket PATH (else $TVSD_SOCKET, else /run/tvsd/tvsd.sock) and --json, and prints an aligned
-table by default.
+table by default: clock times as local ISO time with ms, point flags as words (tvsd.cli.human).
+
+The JSON rule, the same for every tvsctl command: ``--json`` prints one JSON object, the answer
+itself, never wrapped; an answer that is a list is given the name of what it lists
+(``{"faults": [...]}``). A stream (``points``) prints one such object per line.
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+from tvsd.cli.human import humanize
 from tvsd.cli.output import print_json, print_pairs, print_table
 from tvsd.errors import EXIT_OK, UsageError
 from tvsd.rpc.client import DEFAULT_SOCKET, ENV_SOCKET, RpcClient, socket_path
@@ -52,6 +57,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--clear", action="store_true", help="clear the faults")
     p = add("points", "print points of the live point stream", _points)
     p.add_argument("--count", type=int, default=10, metavar="N", help="points to print (default 10)")
+    p.add_argument(
+        "--timeout",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="give up after S s without a point, saying why (default 10; 0: wait forever)",
+    )
     p = add("calibrate-imu", "IMU gyro bias at rest: the daemon saves and applies it", _calibrate_imu)
     p.add_argument("--seconds", type=float, default=2.0, metavar="S", help="capture at rest (default 2)")
     add("shutdown", "stop the daemon", lambda a, c: c.call("shutdown"))
@@ -61,7 +73,7 @@ def _run(args: argparse.Namespace, run: Runner) -> int:
     with RpcClient(socket_path(args.socket)) as client:
         result = run(args, client)
     if result is not None:
-        show(result, as_json=args.json)
+        show(result, as_json=args.json, name=args.command)
     return EXIT_OK
 
 
@@ -114,20 +126,19 @@ def _faults(args: argparse.Namespace, client: RpcClient) -> object:
 def _points(args: argparse.Namespace, client: RpcClient) -> None:
     if args.count < 1:
         raise UsageError(f"--count {args.count}: give at least 1")
-    left = args.count
-    for params in client.subscribe("points"):
-        for point in params if isinstance(params, list) else [params]:  # one point or a batch
-            _show_line(point, as_json=args.json)
-            left -= 1
-            if left == 0:
-                return
+    if not args.timeout >= 0:
+        raise UsageError(f"--timeout {args.timeout:g}: give seconds ≥ 0 (0: wait forever)")
+    from tvsd.cli.point_wait import stream_points
+
+    for point in stream_points(client, args.count, args.timeout or None):
+        _show_line(point, as_json=args.json)
 
 
 def _show_line(item: object, *, as_json: bool) -> None:
     if as_json or not isinstance(item, Mapping):
         print(json.dumps(item), flush=True)
     else:
-        print("  ".join(f"{k}={_fmt(v)}" for k, v in item.items()), flush=True)
+        print("  ".join(f"{k}={_fmt(v)}" for k, v in humanize(item).items()), flush=True)
 
 
 def _fmt(value: object) -> str:
@@ -141,19 +152,27 @@ def flatten(obj: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
         key = f"{prefix}{k}"
         if isinstance(v, Mapping) and v:
             out.update(flatten(v, key + "."))
+        elif isinstance(v, list) and v and all(isinstance(i, Mapping) for i in v):
+            out[key] = list(v)  # one line per item (faults): print_pairs
         else:
             out[key] = json.dumps(v) if isinstance(v, (list, Mapping)) else v
     return out
 
 
-def show(result: object, *, as_json: bool) -> None:
+def as_object(result: object, name: str) -> Mapping[str, Any]:
+    """The JSON rule (module doc): an object as it is, anything else named by the command."""
+    return result if isinstance(result, Mapping) else {name: result}
+
+
+def show(result: object, *, as_json: bool, name: str = "result") -> None:
     """Print a method's result: as one JSON object with --json, else as a table."""
     if as_json:
-        print_json(result if isinstance(result, Mapping) else {"result": result})
+        print_json(as_object(result, name))
     elif isinstance(result, Mapping):
         if result:
-            print_pairs(flatten(result))
+            print_pairs(flatten(humanize(result)))
     elif isinstance(result, list) and result and all(isinstance(r, Mapping) for r in result):
+        result = [humanize(r) for r in result]
         keys = list(dict.fromkeys(k for r in result for k in r))
         print_table([[r.get(k, "") for k in keys] for r in result], keys)
     elif isinstance(result, list) and not result:
