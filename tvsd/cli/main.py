@@ -40,6 +40,7 @@ COMMANDS: dict[str, str] = {
     "mcu": "tvsd.cli.mcu",
     "export": "tvsd.cli.export",
     "latency": "tvsd.cli.latency",
+    "watch": "tvsd.cli.watch",
     **dict.fromkeys(_DAEMON_COMMANDS, "tvsd.cli.daemon_cmds"),  # thin clients of tvsd's socket
 }
 

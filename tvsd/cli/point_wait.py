@@ -28,9 +28,10 @@ def why_no_points(status: Mapping[str, Any]) -> str:
     """What a point stream is waiting for, from the daemon's status: one line with the fix."""
     state = status.get("state")
     if state == "fault":
-        recent = status.get("faults", [])[-2:]
-        causes = "; ".join(str(f.get("cause")) for f in recent) or "see `tvsctl faults`"
-        return f"the drive is faulted ({causes}): `tvsctl faults --clear`, then `tvsctl scan start`"
+        faults = status.get("faults", [])  # the first since the last clear is the one that latched
+        cause = str(faults[0].get("cause")) if faults else "see `tvsctl faults`"
+        more = f" and {len(faults) - 1} more" if len(faults) > 1 else ""
+        return f"the drive is faulted ({cause}{more}): `tvsctl faults --clear`, then `tvsctl scan start`"
     if state == "starting":
         return "the daemon is still starting (its devices are coming up)"
     if state in ("idle", "spinning"):
@@ -69,9 +70,9 @@ def stream_points(client: RpcClient, count: int, timeout_s: float | None) -> Ite
         except queue.Empty:
             waited = time.monotonic() - last_point
             reason = _reason(client)
-            if reason != said:
+            if reason.split("(")[0] != said:  # once per kind of wait, not per new fault entry
                 print(f"tvsctl: waiting for points: {reason}", file=sys.stderr, flush=True)
-                said = reason
+                said = reason.split("(")[0]
             if timeout_s is not None and waited >= timeout_s:
                 raise NoPoints(f"no point within {timeout_s:g} s: {reason}") from None
             continue
