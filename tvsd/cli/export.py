@@ -20,6 +20,7 @@ from tvsd.recording.format import LOOP_CHANNEL
 from tvsd.recording.reader import flatten_config, open_recording
 
 CONFIG_SECTIONS = ("plant", "drive", "control", "geometry")
+FORMATS = ("csv", "parquet", "mcap")
 SIGNIFICANT_DIGITS = 9  # tvsd.recording.csvfile.write keeps %.9g
 
 
@@ -31,7 +32,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "recording CSV of docs/architecture.md, with the daemon's config as metadata lines.",
     )
     p.add_argument("rec", type=Path, metavar="REC", help="recording directory written by tvsd")
-    p.add_argument("--csv", type=Path, required=True, metavar="OUT", help="CSV file to write")
+    p.add_argument("--csv", type=Path, metavar="OUT", help="CSV file to write (= --format csv --out OUT)")
+    p.add_argument("--out", type=Path, metavar="OUT", help="file to write, in --format")
+    p.add_argument(
+        "--format",
+        choices=FORMATS,
+        default="csv",
+        help="csv: the recording CSV (analyze reads it); parquet: the same table for pandas/polars; "
+        "mcap: every channel and the marks, JSON schemas per channel (Foxglove)",
+    )
     p.add_argument("--channel", default=LOOP_CHANNEL, help=f"channel to export (default: {LOOP_CHANNEL})")
     p.add_argument("--start", type=float, default=0.0, metavar="S", help="seconds after the first sample")
     p.add_argument("--end", type=float, default=math.inf, metavar="S", help="seconds after the first sample")
@@ -39,9 +48,16 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if (args.csv is None) == (args.out is None) or (args.csv is not None and args.format != "csv"):
+        raise UsageError("export: give --out OUT (with --format csv|parquet|mcap), or --csv OUT")
+    out: Path = args.csv if args.csv is not None else args.out
     rec = open_recording(args.rec)
     for problem in rec.problems:
         warn(f"{args.rec}: {problem}")
+    if args.format == "mcap":
+        from tvsd.cli.export_formats import export_mcap
+
+        return export_mcap(rec, args.rec, out)
     if args.channel not in rec.channels:
         have = ", ".join(sorted(rec.channels)) or "none"
         raise DataFileError(f"{args.rec}: no '{args.channel}' channel in this recording (channels: {have})")
@@ -84,8 +100,13 @@ def _run(args: argparse.Namespace) -> int:
         meta["dropped_rows"] = rec.stats.get("channels", {}).get(args.channel, {}).get("dropped_rows", 0)
     meta.update(flatten_config(rec.config_text, CONFIG_SECTIONS))
     phi = sel["phi"].astype(float) if "phi" in fields else None
-    write(args.csv, t, sel["u"].astype(float), sel["omega"].astype(float), phi, rate, meta, extra)
-    print(f"{args.csv}: {len(t)} rows, {t[-1]:.3f} s at {rate:g} Hz from {args.rec}")
+    if args.format == "parquet":
+        from tvsd.cli.export_formats import export_parquet
+
+        export_parquet(out, t, sel["u"].astype(float), sel["omega"].astype(float), phi, rate, meta, extra)
+    else:
+        write(out, t, sel["u"].astype(float), sel["omega"].astype(float), phi, rate, meta, extra)
+    print(f"{out}: {len(t)} rows, {t[-1]:.3f} s at {rate:g} Hz from {args.rec}")
     return EXIT_OK
 
 
