@@ -169,3 +169,69 @@ def test_points_on_an_idle_daemon_names_the_fix(serve: Any, capsys: pytest.Captu
     sock = serve(Fake("idle"))
     status, _, err = tvsctl(capsys, "points", "--timeout", "1", "--socket", str(sock))
     assert status == 1 and "not scanning: `tvsctl speed 25` and `tvsctl scan start`" in err
+
+
+def test_bench_prints_each_group_as_it_finishes_and_keeps_them_on_ctrl_c(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """It printed nothing for 20 minutes under load: now a group's figures are out before the
+    next group starts, and Ctrl-C in a later group keeps them (exit 130)."""
+    from tvsd.cli import bench
+
+    seen: dict[str, str] = {}
+
+    def second() -> dict[str, float]:
+        seen["before_second"] = capsys.readouterr().out  # what the user saw while this one ran
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(bench, "BENCHES", {"first": lambda: {"first_figure": 1.5}, "second": second})
+    status = cli.main(["bench"])
+    err = capsys.readouterr().err
+    assert status == 130
+    assert "# first" in seen["before_second"] and "first_figure" in seen["before_second"]
+    assert "interrupted in second" in err
+    status = cli.main(["bench", "--json"])
+    obj = json.loads(capsys.readouterr().out)
+    assert status == 130 and obj["first_figure"] == 1.5 and obj["interrupted_in"] == "second"
+    assert obj["groups_done"] == ["first"]
+
+
+def _stderr_on_a_terminal(argv: list[str]) -> tuple[int, str, str]:
+    """Run tvsctl with stderr on a pseudo-terminal (as a user's shell) and stdout piped."""
+    import os
+    import pty
+    import subprocess
+    import sys
+
+    master, slave = pty.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tvsd.cli.main", *argv], stdout=subprocess.PIPE, stderr=slave
+    )
+    os.close(slave)
+    chunks = []
+    while True:
+        try:
+            data = os.read(master, 65536)
+        except OSError:  # EIO: the child closed the terminal
+            break
+        if not data:
+            break
+        chunks.append(data)
+    out = proc.stdout.read().decode() if proc.stdout else ""
+    os.close(master)
+    return proc.wait(60), out, b"".join(chunks).decode(errors="replace")
+
+
+@pytest.mark.slow
+def test_scan_shows_progress_on_a_terminal_and_none_when_piped() -> None:
+    import subprocess
+    import sys
+
+    argv = ["sim", "scan", "--rps", "20", "--sigma-v", "0.3381", "--seconds", "2", "--json"]
+    status, out, err = _stderr_on_a_terminal(argv)
+    assert status == 0 and json.loads(out)["cases"], err
+    assert "DoE B: 1 drive runs" in err  # the bar (rich) on the terminal
+    piped = subprocess.run(
+        [sys.executable, "-m", "tvsd.cli.main", *argv], capture_output=True, text=True, timeout=120
+    )
+    assert piped.returncode == 0 and piped.stderr == ""
