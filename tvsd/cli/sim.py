@@ -212,7 +212,7 @@ def _spin(args: argparse.Namespace) -> int:
             "its amplitude (rad/s²)": (
                 res.dominant_amplitude_rad_s2 if res.dominant_amplitude_rad_s2 is not None else "—"
             ),
-            "strongest bin / floor": f"{res.line_to_floor:.2f} (a line needs > {res.line_threshold:.2f})",
+            "PSD / noise floor there": f"{res.line_to_floor:.2f} (a line needs > {res.line_threshold:.2f})",
             "steady from (s)": res.steady_from_s,
             "vibration model": res.vibration_model,
             "effects": ", ".join(res.effects) or "none",
