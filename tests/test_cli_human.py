@@ -3,6 +3,7 @@ point stream that says what it waits for (issue 15). A fake daemon on a real soc
 
 from __future__ import annotations
 
+import asyncio
 import json
 import re
 import tempfile
@@ -26,6 +27,7 @@ ISO_MS = re.compile(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}[+-]\d\d:\d\d")
 class Fake:
     def __init__(self, state: str = "scanning", faults: list[dict[str, Any]] | None = None) -> None:
         self.state, self.faults = state, faults or []
+        self.delay_s = 0.0
 
     def table(self) -> dict[str, Any]:
         def answer(result: object) -> Any:
@@ -40,6 +42,10 @@ class Fake:
         async def faults_list() -> list[dict[str, Any]]:
             return self.faults
 
+        async def slow_answer() -> dict[str, Any]:  # a daemon busy for longer than a caller waits
+            await asyncio.sleep(self.delay_s)
+            return {"recorded": None}
+
         return {
             "status": status,
             "faults_list": faults_list,
@@ -52,7 +58,7 @@ class Fake:
             "gains_get": answer({"Gp": 3.78, "Gd": 3.11, "Gr": 2.0, "G0": 100.0}),
             "gains_set": answer({"gains": {"Gp": 1.0, "Gd": 1.0, "Gr": 1.0, "G0": 1.0}, "warnings": []}),
             "record_start": answer({"recording": "/tmp/rec"}),
-            "record_stop": answer({"recorded": None}),
+            "record_stop": slow_answer,
             "imu_calibrate": answer({"bias": [0.0, 0.0, 0.0]}),
             "shutdown": answer({"state": "stopping"}),
         }
@@ -235,3 +241,18 @@ def test_scan_shows_progress_on_a_terminal_and_none_when_piped() -> None:
         [sys.executable, "-m", "tvsd.cli.main", *argv], capture_output=True, text=True, timeout=120
     )
     assert piped.returncode == 0 and piped.stderr == ""
+
+
+def test_a_daemon_command_waits_at_most_its_timeout_and_says_for_what(
+    serve: Any, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Bound: --timeout 1 s, plus the interpreter's slack on a loaded machine."""
+    fake = Fake()
+    fake.delay_s = 30.0
+    sock = serve(fake)
+    t0 = time.monotonic()
+    status, _, err = tvsctl(capsys, "record", "stop", "--timeout", "1", "--socket", str(sock))
+    assert status == 3 and "did not answer 'record_stop' within 1 s" in err, err
+    assert time.monotonic() - t0 < 5.0
+    status, _, err = tvsctl(capsys, "status", "--timeout", "0", "--socket", str(sock))
+    assert status == 2 and "--timeout 0: give seconds > 0" in err

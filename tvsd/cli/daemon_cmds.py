@@ -14,16 +14,20 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 from tvsd.cli.human import humanize
 from tvsd.cli.output import print_json, print_pairs, print_table
+from tvsd.cli.progress import on_terminal
 from tvsd.errors import EXIT_OK, UsageError
 from tvsd.rpc.client import DEFAULT_SOCKET, ENV_SOCKET, RpcClient, socket_path
 
 GAIN_NAMES = ("Gp", "Gd", "Gr", "G0")
+CALL_TIMEOUT_S = 5.0  # an answer the daemon owes at once (status, speed, ...)
+POINTS_TIMEOUT_S = 10.0  # the point stream: a scanning daemon makes ~20 points/s
 
 _SOCKET_HELP = f"daemon socket (default: ${ENV_SOCKET}, else {DEFAULT_SOCKET})"
 
@@ -34,6 +38,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--socket", type=Path, metavar="PATH", help=_SOCKET_HELP)
     common.add_argument("--json", action="store_true", help="print one JSON object")
+    common.add_argument(
+        "--timeout",
+        type=float,
+        metavar="S",
+        help=f"give up after S s without the daemon's answer (default {CALL_TIMEOUT_S:g}; "
+        f"points: S s without a point, default {POINTS_TIMEOUT_S:g}, 0 waits forever)",
+    )
 
     def add(name: str, help_: str, run: Runner) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_, parents=[common])
@@ -57,20 +68,17 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--clear", action="store_true", help="clear the faults")
     p = add("points", "print points of the live point stream", _points)
     p.add_argument("--count", type=int, default=10, metavar="N", help="points to print (default 10)")
-    p.add_argument(
-        "--timeout",
-        type=float,
-        default=10.0,
-        metavar="S",
-        help="give up after S s without a point, saying why (default 10; 0: wait forever)",
-    )
     p = add("calibrate-imu", "IMU gyro bias at rest: the daemon saves and applies it", _calibrate_imu)
     p.add_argument("--seconds", type=float, default=2.0, metavar="S", help="capture at rest (default 2)")
     add("shutdown", "stop the daemon", lambda a, c: c.call("shutdown"))
 
 
 def _run(args: argparse.Namespace, run: Runner) -> int:
-    with RpcClient(socket_path(args.socket)) as client:
+    timeout = args.timeout
+    if timeout is not None and not (timeout > 0 or (timeout == 0 and args.command == "points")):
+        raise UsageError(f"--timeout {timeout:g}: give seconds > 0")
+    call_timeout = CALL_TIMEOUT_S if timeout is None or args.command == "points" else timeout
+    with RpcClient(socket_path(args.socket), timeout=call_timeout) as client:
         result = run(args, client)
     if result is not None:
         show(result, as_json=args.json, name=args.command)
@@ -115,7 +123,10 @@ def _gains(args: argparse.Namespace, client: RpcClient) -> object:
 def _calibrate_imu(args: argparse.Namespace, client: RpcClient) -> object:
     if not 0 < args.seconds <= 60:
         raise UsageError(f"--seconds {args.seconds:g}: give a duration up to 60 s (the scanner at rest)")
-    client.timeout = max(client.timeout, args.seconds + 10.0)  # the answer comes after the capture
+    if args.timeout is None:  # the answer comes after the capture
+        client.timeout = args.seconds + CALL_TIMEOUT_S
+    if on_terminal():
+        print(f"tvsctl: capturing {args.seconds:g} s at rest, then the answer", file=sys.stderr, flush=True)
     return client.call("imu_calibrate", seconds=args.seconds)
 
 
@@ -126,11 +137,10 @@ def _faults(args: argparse.Namespace, client: RpcClient) -> object:
 def _points(args: argparse.Namespace, client: RpcClient) -> None:
     if args.count < 1:
         raise UsageError(f"--count {args.count}: give at least 1")
-    if not args.timeout >= 0:
-        raise UsageError(f"--timeout {args.timeout:g}: give seconds ≥ 0 (0: wait forever)")
     from tvsd.cli.point_wait import stream_points
 
-    for point in stream_points(client, args.count, args.timeout or None):
+    timeout = POINTS_TIMEOUT_S if args.timeout is None else args.timeout
+    for point in stream_points(client, args.count, timeout or None):
         _show_line(point, as_json=args.json)
 
 
