@@ -132,13 +132,21 @@ def render(status: Mapping[str, Any] | None, history: list[tuple[float, float, f
     aim = status.get("aim_deg", {})
     grid.add_row("aim", f"φ {aim.get('phi', math.nan):.2f}°, γ {aim.get('gamma', math.nan):.2f}°")
     grid.add_row("recording", str(status.get("recording") or "off"))
-    faults = status.get("faults", [])
+    faults = list(status.get("faults", []))
     if not faults:
         grid.add_row("faults", Text("none", style="green"))
-    for n, f in enumerate(faults[-3:]):
+    # The first since the last clear is the one that latched a fault state; then the newest two.
+    shown: list[Any] = faults
+    if len(faults) > 3:
+        shown = [faults[0], f"… {len(faults) - 3} more …", *faults[-2:]]
+    for n, f in enumerate(shown):
+        label = f"faults ({len(faults)})" if n == 0 else ""
+        if isinstance(f, str):
+            grid.add_row(label, Text(f, style="red"))
+            continue
         when = local_time(f["t_unix"]) if isinstance(f.get("t_unix"), (int, float)) else "?"
-        grid.add_row("faults" if n == 0 else "", Text(f"{when}  {f.get('kind')}: {f.get('cause')} → "
-                                                      f"{f.get('action')}", style="red"))  # fmt: skip
+        line = f"{when}  {f.get('kind')}: {f.get('cause')} → {f.get('action')}"
+        grid.add_row(label, Text(line, style="red"))
     if error:
         grid.add_row("", Text(error, style="bold red"))
     grid.caption = "q or Ctrl-C quits"
