@@ -256,3 +256,26 @@ def test_a_daemon_command_waits_at_most_its_timeout_and_says_for_what(
     assert time.monotonic() - t0 < 5.0
     status, _, err = tvsctl(capsys, "status", "--timeout", "0", "--socket", str(sock))
     assert status == 2 and "--timeout 0: give seconds > 0" in err
+
+
+def test_every_command_prints_its_json_through_the_one_rule() -> None:
+    """Statically, over every tvsctl module: a --json answer leaves only through print_json (one
+    object, checked at run time); the one other JSON print is the points stream's line."""
+    import ast
+
+    import tvsd.cli as pkg
+
+    offenders = []
+    for path in sorted(Path(pkg.__file__).parent.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (
+                isinstance(node, ast.Call)
+                and getattr(node.func, "id", None) == "print"
+                and any("json.dumps" in ast.unparse(a) for a in node.args)
+            ):
+                offenders.append(f"{path.name}:{node.lineno}")
+    assert [o.split(":")[0] for o in offenders] == ["daemon_cmds.py", "output.py"], offenders
+    from tvsd.cli.output import print_json
+
+    with pytest.raises(TypeError, match="one object"):
+        print_json([1, 2])  # type: ignore[arg-type]
