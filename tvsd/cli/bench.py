@@ -116,7 +116,9 @@ def _run(args: argparse.Namespace) -> int:
                 sys.stdout.flush()
     except KeyboardInterrupt:
         left = groups[len(done) :]
-        print(f"tvsctl: bench interrupted in {left[0]}; not run: {', '.join(left)}", file=sys.stderr)
+        rest = f"; not run: {', '.join(left[1:])}" if left[1:] else ""
+        kept = ", ".join(done) or "no group"
+        print(f"tvsctl: bench interrupted in {left[0]}, kept {kept}{rest}", file=sys.stderr)
         if args.json:
             print_json({**figures, "groups_done": done, "interrupted_in": left[0]})
         return EXIT_INTERRUPTED
