@@ -76,6 +76,12 @@ def test_shell_completion(
         monkeypatch.setenv(k, v)
     real = argcomplete.autocomplete
     monkeypatch.setattr(argcomplete, "autocomplete", lambda p: real(p, exit_method=sys.exit))
+    # argcomplete writes its debug to fd 9, which in pytest is faulthandler's: keep off it
+    monkeypatch.setattr(
+        argcomplete.finders.CompletionFinder,
+        "_init_debug_stream",
+        lambda self: setattr(argcomplete.io, "debug_stream", sys.stderr),
+    )
     with pytest.raises(SystemExit) as info:
         main.main()
     assert info.value.code == 0
