@@ -7,7 +7,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test lint pytest firmware-test firmware host-lib system-deps bench clean
+.PHONY: run test lint pytest firmware-test firmware host-lib system-deps bench man clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -52,6 +52,10 @@ firmware: system-deps $(STAMP)
 bench: $(STAMP)
 	$(BIN)/tvsctl bench
 
+# Man pages generated from the parsers: man/tvsctl.1, man/tvsd.1 (`man -l man/tvsctl.1`).
+man: $(STAMP)
+	$(BIN)/python -m tvsd.cli.manpage man
+
 clean:
-	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache .run
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache .run man
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +

@@ -27,7 +27,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--report", type=Path, metavar="DIR", help="write report.md and figures into DIR")
     p.add_argument("--config", type=Path, help="scanner config for R, L, kM, ku (default: config/tvsd.yaml)")
     p.add_argument("--params", choices=("default", "paper"), default="default")
-    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    p.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress lines on stderr (there are none when stderr is not a terminal)",
+    )
     p.set_defaults(func=_run)
 
 
@@ -41,8 +45,12 @@ def _run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config) if args.config else load_config(params=args.params)
     start = time.monotonic()
 
+    from tvsd.cli.progress import on_terminal
+
+    show = on_terminal() and not args.quiet  # a pipe or a log gets the result only
+
     def progress(message: str) -> None:
-        if not args.quiet:
+        if show:
             print(f"[{time.monotonic() - start:5.1f} s] {message}", file=sys.stderr, flush=True)
 
     data = load(args.file, cfg)

@@ -5,11 +5,15 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import sys
+import time
 from collections.abc import Callable
 from typing import Any
 
 from tvsd.cli.output import print_json, print_pairs
 from tvsd.errors import EXIT_OK
+
+EXIT_INTERRUPTED = 130  # as tvsctl's other commands on Ctrl-C (128 + SIGINT)
 
 
 def _sim() -> dict[str, Any]:
@@ -84,20 +88,47 @@ BENCHES: dict[str, Callable[[], dict[str, Any]]] = {
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser("bench", help="run the benchmarks and print the figures")
+    p = sub.add_parser(
+        "bench",
+        help="run the benchmarks and print the figures",
+        description="Runs each group and prints its figures as soon as it finishes; Ctrl-C keeps "
+        "(and prints) the groups done so far. Groups take 0.3 s to 2 min each on 2 cores.",
+    )
     p.add_argument("--only", choices=sorted(BENCHES), action="append", help="run only these groups")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--json", action="store_true", help="print one JSON object (at the end, or on Ctrl-C)")
     p.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
+    from tvsd.cli.progress import on_terminal
+
     figures: dict[str, Any] = {
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}"
     }
-    for name in args.only or BENCHES:
-        figures.update(BENCHES[name]())
-    if args.json:
-        print_json(figures)
-    else:
+    groups = list(dict.fromkeys(args.only or BENCHES))
+    if not args.json:
         print_pairs(figures)
+    done: list[str] = []
+    try:
+        for n, name in enumerate(groups, 1):
+            if on_terminal():
+                print(f"[{n}/{len(groups)}] {name} …", file=sys.stderr, flush=True)
+            t0 = time.monotonic()
+            got = BENCHES[name]()
+            figures.update(got)
+            done.append(name)
+            if not args.json:  # each group as it finishes: a long suite is never silent
+                print(f"\n# {name} ({time.monotonic() - t0:.1f} s)")
+                print_pairs(got)
+                sys.stdout.flush()
+    except KeyboardInterrupt:
+        left = groups[len(done) :]
+        rest = f"; not run: {', '.join(left[1:])}" if left[1:] else ""
+        kept = ", ".join(done) or "no group"
+        print(f"tvsctl: bench interrupted in {left[0]}, kept {kept}{rest}", file=sys.stderr)
+        if args.json:
+            print_json({**figures, "groups_done": done, "interrupted_in": left[0]})
+        return EXIT_INTERRUPTED
+    if args.json:
+        print_json({**figures, "groups_done": done})
     return EXIT_OK

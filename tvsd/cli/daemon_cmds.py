@@ -2,7 +2,11 @@
 
 Each command maps to the daemon method of the same name (``scan start`` → ``scan_start``, ...),
 takes --socket PATH (else $TVSD_SOCKET, else /run/tvsd/tvsd.sock) and --json, and prints an aligned
-table by default.
+table by default: clock times as local ISO time with ms, point flags as words (tvsd.cli.human).
+
+The JSON rule, the same for every tvsctl command: ``--json`` prints one JSON object, the answer
+itself, never wrapped; an answer that is a list is given the name of what it lists
+(``{"faults": [...]}``). A stream (``points``) prints one such object per line.
 """
 
 from __future__ import annotations
@@ -10,15 +14,20 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+from tvsd.cli.human import humanize
 from tvsd.cli.output import print_json, print_pairs, print_table
+from tvsd.cli.progress import on_terminal
 from tvsd.errors import EXIT_OK, UsageError
 from tvsd.rpc.client import DEFAULT_SOCKET, ENV_SOCKET, RpcClient, socket_path
 
 GAIN_NAMES = ("Gp", "Gd", "Gr", "G0")
+CALL_TIMEOUT_S = 5.0  # an answer the daemon owes at once (status, speed, ...)
+POINTS_TIMEOUT_S = 10.0  # the point stream: a scanning daemon makes ~20 points/s
 
 _SOCKET_HELP = f"daemon socket (default: ${ENV_SOCKET}, else {DEFAULT_SOCKET})"
 
@@ -29,6 +38,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--socket", type=Path, metavar="PATH", help=_SOCKET_HELP)
     common.add_argument("--json", action="store_true", help="print one JSON object")
+    common.add_argument(
+        "--timeout",
+        type=float,
+        metavar="S",
+        help=f"give up after S s without the daemon's answer (default {CALL_TIMEOUT_S:g}; "
+        f"points: S s without a point, default {POINTS_TIMEOUT_S:g}, 0 waits forever)",
+    )
 
     def add(name: str, help_: str, run: Runner) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_, parents=[common])
@@ -58,10 +74,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _run(args: argparse.Namespace, run: Runner) -> int:
-    with RpcClient(socket_path(args.socket)) as client:
+    timeout = args.timeout
+    if timeout is not None and not (timeout > 0 or (timeout == 0 and args.command == "points")):
+        raise UsageError(f"--timeout {timeout:g}: give seconds > 0")
+    call_timeout = CALL_TIMEOUT_S if timeout is None or args.command == "points" else timeout
+    with RpcClient(socket_path(args.socket), timeout=call_timeout) as client:
         result = run(args, client)
     if result is not None:
-        show(result, as_json=args.json)
+        show(result, as_json=args.json, name=args.command)
     return EXIT_OK
 
 
@@ -103,7 +123,10 @@ def _gains(args: argparse.Namespace, client: RpcClient) -> object:
 def _calibrate_imu(args: argparse.Namespace, client: RpcClient) -> object:
     if not 0 < args.seconds <= 60:
         raise UsageError(f"--seconds {args.seconds:g}: give a duration up to 60 s (the scanner at rest)")
-    client.timeout = max(client.timeout, args.seconds + 10.0)  # the answer comes after the capture
+    if args.timeout is None:  # the answer comes after the capture
+        client.timeout = args.seconds + CALL_TIMEOUT_S
+    if on_terminal():
+        print(f"tvsctl: capturing {args.seconds:g} s at rest, then the answer", file=sys.stderr, flush=True)
     return client.call("imu_calibrate", seconds=args.seconds)
 
 
@@ -114,20 +137,18 @@ def _faults(args: argparse.Namespace, client: RpcClient) -> object:
 def _points(args: argparse.Namespace, client: RpcClient) -> None:
     if args.count < 1:
         raise UsageError(f"--count {args.count}: give at least 1")
-    left = args.count
-    for params in client.subscribe("points"):
-        for point in params if isinstance(params, list) else [params]:  # one point or a batch
-            _show_line(point, as_json=args.json)
-            left -= 1
-            if left == 0:
-                return
+    from tvsd.cli.point_wait import stream_points
+
+    timeout = POINTS_TIMEOUT_S if args.timeout is None else args.timeout
+    for point in stream_points(client, args.count, timeout or None):
+        _show_line(point, as_json=args.json)
 
 
 def _show_line(item: object, *, as_json: bool) -> None:
     if as_json or not isinstance(item, Mapping):
         print(json.dumps(item), flush=True)
     else:
-        print("  ".join(f"{k}={_fmt(v)}" for k, v in item.items()), flush=True)
+        print("  ".join(f"{k}={_fmt(v)}" for k, v in humanize(item).items()), flush=True)
 
 
 def _fmt(value: object) -> str:
@@ -141,19 +162,27 @@ def flatten(obj: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
         key = f"{prefix}{k}"
         if isinstance(v, Mapping) and v:
             out.update(flatten(v, key + "."))
+        elif isinstance(v, list) and v and all(isinstance(i, Mapping) for i in v):
+            out[key] = list(v)  # one line per item (faults): print_pairs
         else:
             out[key] = json.dumps(v) if isinstance(v, (list, Mapping)) else v
     return out
 
 
-def show(result: object, *, as_json: bool) -> None:
+def as_object(result: object, name: str) -> Mapping[str, Any]:
+    """The JSON rule (module doc): an object as it is, anything else named by the command."""
+    return result if isinstance(result, Mapping) else {name: result}
+
+
+def show(result: object, *, as_json: bool, name: str = "result") -> None:
     """Print a method's result: as one JSON object with --json, else as a table."""
     if as_json:
-        print_json(result if isinstance(result, Mapping) else {"result": result})
+        print_json(as_object(result, name))
     elif isinstance(result, Mapping):
         if result:
-            print_pairs(flatten(result))
+            print_pairs(flatten(humanize(result)))
     elif isinstance(result, list) and result and all(isinstance(r, Mapping) for r in result):
+        result = [humanize(r) for r in result]
         keys = list(dict.fromkeys(k for r in result for k in r))
         print_table([[r.get(k, "") for k in keys] for r in result], keys)
     elif isinstance(result, list) and not result:

@@ -30,6 +30,7 @@ from tvsd.recording.reader import flatten_config, open_recording
 from tvsd.recording.table import Table, loop_table
 
 CONFIG_SECTIONS = ("plant", "drive", "control", "geometry")
+FORMATS = ("csv", "parquet", "mcap")
 SIGNIFICANT_DIGITS = 9  # tvsd.recording.csvfile.write keeps %.9g
 LISTED_GAPS = 50  # gaps listed one by one in the metadata; more are only counted
 U_UNIT = "V"  # the daemon's command is the drive voltage (docs/architecture.md, u_unit)
@@ -45,7 +46,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "daemon's config as metadata lines.",
     )
     p.add_argument("rec", type=Path, metavar="REC", help="recording directory written by tvsd")
-    p.add_argument("--csv", type=Path, required=True, metavar="OUT", help="CSV file to write")
+    p.add_argument("--csv", type=Path, metavar="OUT", help="CSV file to write (= --format csv --out OUT)")
+    p.add_argument("--out", type=Path, metavar="OUT", help="file to write, in --format")
+    p.add_argument(
+        "--format",
+        choices=FORMATS,
+        default="csv",
+        help="csv: the recording CSV (analyze reads it); parquet: the same table for pandas/polars; "
+        "mcap: every channel and the marks, JSON schemas per channel (Foxglove)",
+    )
     p.add_argument("--channel", default=LOOP_CHANNEL, help=f"channel to export (default: {LOOP_CHANNEL})")
     p.add_argument("--start", type=float, default=0.0, metavar="S", help="seconds after the first sample")
     p.add_argument("--end", type=float, default=math.inf, metavar="S", help="seconds after the first sample")
@@ -59,9 +68,16 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if (args.csv is None) == (args.out is None) or (args.csv is not None and args.format != "csv"):
+        raise UsageError("export: give --out OUT (with --format csv|parquet|mcap), or --csv OUT")
+    out: Path = args.csv if args.csv is not None else args.out
     rec = open_recording(args.rec)
     for problem in rec.problems:
         warn(f"{args.rec}: {problem}")
+    if args.format == "mcap":  # every channel and the marks, not the loop table
+        from tvsd.cli.export_formats import export_mcap
+
+        return export_mcap(rec, args.rec, out)
     table = loop_table(rec, args.channel, args.start, args.end, strict=args.strict)
     span = float(table.t[-1])
     span_ok = 10.0 ** (math.ceil(math.log10(max(span, 1e-300))) - SIGNIFICANT_DIGITS) <= 0.005 / table.rate_hz
@@ -83,14 +99,14 @@ def _run(args: argparse.Namespace) -> int:
     meta.update(_gap_meta(table))
     meta.update(_fault_meta(table))
     meta.update(flatten_config(rec.config_text, CONFIG_SECTIONS))
-    WRITERS["csv"](args.csv, table, meta)
+    WRITERS[args.format](out, table, meta)
     if table.gaps:
         warn(
             f"{args.rec}: {len(table.gaps)} gap(s), {table.missing_samples} sample(s) missing "
             f"(longest {max(g.duration_ms for g in table.gaps):g} ms): filled by interpolation, "
             "flagged gap=1 (--strict refuses them)"
         )
-    print(f"{args.csv}: {len(table.t)} rows, {span:.3f} s at {table.rate_hz:g} Hz from {args.rec}")
+    print(f"{out}: {len(table.t)} rows, {span:.3f} s at {table.rate_hz:g} Hz from {args.rec}")
     return EXIT_OK
 
 
@@ -121,5 +137,15 @@ def write_csv(path: Path, table: Table, meta: dict[str, object]) -> None:
     write(path, table.t, u, omega, phi, table.rate_hz, meta, {k: np.asarray(v) for k, v in extra.items()})
 
 
-# Output formats by name: a writer takes the path, the table and the metadata lines.
-WRITERS: dict[str, Callable[[Path, Table, dict[str, object]], None]] = {"csv": write_csv}
+def write_parquet(path: Path, table: Table, meta: dict[str, object]) -> None:
+    from tvsd.cli.export_formats import export_parquet  # pyarrow: imported only for this format
+
+    export_parquet(path, table, meta)
+
+
+# Output formats by name: a writer takes the path, the table and the metadata lines (mcap, which
+# carries every channel and the marks rather than the loop table, is handled before the table).
+WRITERS: dict[str, Callable[[Path, Table, dict[str, object]], None]] = {
+    "csv": write_csv,
+    "parquet": write_parquet,
+}

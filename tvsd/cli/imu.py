@@ -19,7 +19,6 @@ Samples file (--out), one file for both sensors, read back by read_samples():
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from tvsd.cli.imu_sil import add_sil_arguments, sil_bench
+from tvsd.cli.output import print_json
 from tvsd.daemon.main import DEFAULT_DATA
 from tvsd.errors import EXIT_OK, DataFileError, DeviceError, UsageError
 from tvsd.hw import imu_calibration as cal
@@ -229,7 +229,7 @@ def cmd_capture(args: argparse.Namespace) -> int:
         _plot(args.plot, f, p, f_peak, recs)
         result["plot"] = str(args.plot)
     if args.json:
-        print(json.dumps(result))
+        print_json(result)
     else:
         for n, s in result["sensors"].items():  # type: ignore[attr-defined]
             print(
@@ -284,7 +284,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         for n, c in result.items()
     }
     if args.json:
-        print(json.dumps({"file": str(out), "sensors": sensors}))
+        print_json({"file": str(out), "sensors": sensors})
     else:
         for n, v in sensors.items():
             print(f"{n}: gyro bias {v['gyro_bias_deg_s']} deg/s ({v['samples']} samples)")
@@ -323,7 +323,7 @@ def bench_capture(seconds: float = 5.0) -> dict[str, float]:
 def cmd_bench(args: argparse.Namespace) -> int:
     result = bench_capture(args.seconds)
     if args.json:
-        print(json.dumps(result))
+        print_json(result)
     else:
         for k, v in result.items():
             print(f"{k:28s} {v:.6g}")

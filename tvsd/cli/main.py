@@ -1,3 +1,4 @@
+# PYTHON_ARGCOMPLETE_OK  (argcomplete looks for this marker in the entry point's module)
 """tvsctl — the command line of tvsd.
 
 Subcommands live in one module each, listed in COMMANDS (one line per command, like python-can's
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -40,6 +42,7 @@ COMMANDS: dict[str, str] = {
     "mcu": "tvsd.cli.mcu",
     "export": "tvsd.cli.export",
     "latency": "tvsd.cli.latency",
+    "watch": "tvsd.cli.watch",
     **dict.fromkeys(_DAEMON_COMMANDS, "tvsd.cli.daemon_cmds"),  # thin clients of tvsd's socket
 }
 
@@ -66,7 +69,21 @@ def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
     return parser
 
 
+def _complete() -> None:
+    """Shell completion (argcomplete): answers and exits when the shell asks, else returns at once.
+    Only the typed command's module is loaded, as for a run; the command list needs them all."""
+    if "_ARGCOMPLETE" not in os.environ:
+        return
+    import argcomplete
+
+    words = os.environ.get("COMP_LINE", "")[: int(os.environ.get("COMP_POINT", "0") or 0)].split()[1:]
+    typed = words if len(words) > 1 or os.environ.get("COMP_LINE", "").endswith(" ") else []
+    argcomplete.autocomplete(build_parser(typed))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    if argv is None:
+        _complete()
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(argv)
     args = parser.parse_args(argv)

@@ -16,6 +16,7 @@ import contextlib
 import statistics
 from collections.abc import AsyncIterator, Callable, Coroutine, Iterator
 from dataclasses import asdict
+from pathlib import Path
 from typing import Any
 
 from tvsd.cli.output import print_json, print_pairs, print_table
@@ -92,6 +93,27 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return _run(args, body)
 
 
+def _ping_plot(rtt_us: list[float], marks: dict[str, float], where: str, path: Path) -> None:
+    """Histogram of the round trips (log-spaced bins: the tail is what matters), p50/p99 marked."""
+    import numpy as np
+
+    from tvsd.sim.plots import figure, save_png
+
+    plt, fig, ax = figure(1, 1, (8, 4))
+    lo, hi = max(min(rtt_us), 1.0), max(max(rtt_us), 2.0)
+    ax.hist(rtt_us, bins=np.geomspace(lo, hi * 1.01, 40))
+    ax.set_xscale("log")
+    for name, style in (("p50", "--"), ("p99", ":")):
+        ax.axvline(marks[name], color="r", lw=0.9, ls=style, label=f"{name} {marks[name]:.0f} µs")
+    ax.set(
+        xlabel="round trip (µs)",
+        ylabel="heartbeats",
+        title=f"MCU heartbeat round trips: {len(rtt_us)} ({where})",
+    )
+    ax.legend()
+    save_png(plt, fig, path)
+
+
 def _percentile(sorted_values: list[float], q: float) -> float:
     i = min(len(sorted_values) - 1, max(0, round(q * (len(sorted_values) - 1))))
     return sorted_values[i]
@@ -104,6 +126,8 @@ def cmd_ping(args: argparse.Namespace) -> int:
         raise UsageError(f"--interval must not be negative, got {args.interval}")
     if not args.timeout > 0:
         raise UsageError(f"--timeout must be more than 0 s, got {args.timeout}")
+    if args.plot is not None and args.plot.suffix.lower() != ".png":
+        raise UsageError(f"--plot {args.plot}: the plot is written as PNG; give a file name ending in .png")
 
     async def body(port: str) -> int:
         rtts: list[float] = []
@@ -125,6 +149,10 @@ def cmd_ping(args: argparse.Namespace) -> int:
             "p99": _percentile(s, 0.99) * 1e6,
             "max": s[-1] * 1e6,
         }
+        if args.plot:
+            _ping_plot(
+                [r * 1e6 for r in rtts], rtt_us, f"{'sil' if args.sil else port}, {lost} lost", args.plot
+            )
         if args.json:
             print_json({"count": args.count, "answered": len(rtts), "lost": lost, "rtt_us": rtt_us})
         else:
@@ -176,6 +204,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ping.add_argument("--count", type=int, default=100, help="heartbeats (default %(default)s)")
     ping.add_argument("--interval", type=float, default=0.01, help="s between (%(default)s)")
     ping.add_argument("--timeout", type=float, default=0.2, help="s to wait for each answer (%(default)s)")
+    ping.add_argument(
+        "--plot", type=Path, metavar="FILE.png", help="draw the round-trip histogram into FILE.png"
+    )
     ping.set_defaults(func=cmd_ping)
     stats = sub.add_parser("stats", help="link counters of both sides")
     _common(stats)

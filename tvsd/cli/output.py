@@ -23,6 +23,10 @@ def _clean(obj: Any) -> Any:
 
 
 def print_json(obj: Mapping[str, Any]) -> None:
+    """The one way a command prints its --json answer: one object on one line (the JSON rule of
+    tvsd.cli.daemon_cmds: never a bare list or value, never wrapped)."""
+    if not isinstance(obj, Mapping):
+        raise TypeError(f"--json prints one object, got {type(obj).__name__}: name the list by its command")
     print(json.dumps(_clean(obj), indent=None, sort_keys=False))
 
 

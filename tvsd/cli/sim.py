@@ -82,7 +82,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="S",
         help="vibration level σv of the SIL profile's model (paper: 0.0838, 0.3381, 0.8069)",
     )
-    rec.add_argument("--json", action="store_true")
+    rec.add_argument("--json", action="store_true", help="print one JSON object")
+    rec.add_argument("--plot", type=Path, metavar="FILE.png", help="draw the recorded signals into FILE.png")
     rec.set_defaults(func=_record)
 
     from tvsd.cli import sim_scan
@@ -132,6 +133,7 @@ def _step(args: argparse.Namespace) -> int:
         step_plot(
             res.trace,
             math.radians(args.ref_deg),
+            res.settling_time_s,
             f"{cfg.plant.name}: step to {args.ref_deg:g}° "
             f"(Gp,Gd,Gr,G0 = {g.Gp:g},{g.Gd:g},{g.Gr:g},{g.G0:g})",
             args.plot,
@@ -157,7 +159,15 @@ def _table6(args: argparse.Namespace) -> int:
 
     res = experiments.table6(_config(args), ku=args.ku)
     if args.plot:
-        raise UsageError("table6 draws no figure; use `tvsctl sim step --plot` for one reference")
+        from tvsd.sim.plots import table6_plot
+
+        table6_plot(
+            [r.ref_deg for r in res.rows],
+            [r.paper_s for r in res.rows],
+            [r.ours_s for r in res.rows],
+            f"Table 6: settling times (ku = {res.ku:g}; rms error {res.rms_error_pct:.2f} %)",
+            args.plot,
+        )
     if args.json:
         print_json(res.as_dict())
         return EXIT_OK
@@ -196,8 +206,13 @@ def _spin(args: argparse.Namespace) -> int:
             "speed mean (rev/s)": res.rps_mean,
             "speed std (rev/s)": res.rps_std,
             "ω std (rad/s)": res.omega_std_rad_s,
-            "dominant vibration line (Hz)": res.dominant_hz,
-            "its amplitude (rad/s²)": res.dominant_amplitude_rad_s2,
+            "dominant vibration line (Hz)": (
+                res.dominant_hz if res.dominant_hz is not None else "none above the noise floor"
+            ),
+            "its amplitude (rad/s²)": (
+                res.dominant_amplitude_rad_s2 if res.dominant_amplitude_rad_s2 is not None else "—"
+            ),
+            "PSD / noise floor there": f"{res.line_to_floor:.2f} (a line needs > {res.line_threshold:.2f})",
             "steady from (s)": res.steady_from_s,
             "vibration model": res.vibration_model,
             "effects": ", ".join(res.effects) or "none",
@@ -220,7 +235,13 @@ def _record(args: argparse.Namespace) -> int:
         sil = cfg.sil_or_default
         vib = dataclasses.replace(sil.vibration, sigma_v=args.sigma_v)
         cfg = dataclasses.replace(cfg, sil=dataclasses.replace(sil, vibration=vib))
+    if args.plot is not None and args.plot.suffix.lower() != ".png":  # before the run, not after
+        raise UsageError(f"--plot {args.plot}: the plot is written as PNG; give a file name ending in .png")
     res = record(cfg, args.out, args.profile, seconds, effects, args.seed, args.rps, args.params)
+    if args.plot:
+        from tvsd.sim.plots import record_plot
+
+        record_plot(res.path, args.plot)
     if args.json:
         print_json(
             {

@@ -79,9 +79,14 @@ def handle(args: argparse.Namespace) -> int:
     texts = args.effect or [DEFAULT_EFFECT]
     effects = () if texts == ["none"] else parse_effects(texts)
     settings = ScanSettings(baseline_m=cfg.geometry.baseline_m, estimator=args.estimator)
-    cases, clouds = scene.doe_b(
-        cfg, settings, effects, tuple(args.rps), tuple(args.sigma_v), args.seconds, args.range_m, args.seed
-    )
+    from tvsd.cli.progress import progress_bar
+
+    runs = len(args.rps) * len(args.sigma_v)
+    with progress_bar(f"DoE B: {runs} drive runs × 9 targets", runs) as advance:
+        cases, clouds = scene.doe_b(
+            cfg, settings, effects, tuple(args.rps), tuple(args.sigma_v), args.seconds, args.range_m,
+            args.seed, progress=advance,
+        )  # fmt: skip
     strongest = max(args.sigma_v)
     gain, worst = report.compensation_gain(cases, strongest)
     t4_rps = 20.0 if 20.0 in args.rps else args.rps[0]

@@ -213,10 +213,20 @@ class DriveLink:
         """Move the PL axes (φ, γ in rad); the SIL scene puts the spot where they point."""
         if self.steppers is None:
             raise DeviceError("the MCU link is not up: no stepper can move")
-        for axis in ("phi", "gamma"):
+        targets = {"phi": math.degrees(phi), "gamma": math.degrees(gamma)}
+        # Check both axes before moving either: a γ refused after φ had started left φ moved.
+        for axis, deg in targets.items():
             st = self.steppers.status(axis)
+            a = self.steppers.axes[axis]
             if not st.homed:
                 raise UsageError(f"{st.name} is not homed yet (homing runs after start): retry in a few s")
+            if not a.min_deg <= deg <= a.max_deg:
+                raise UsageError(
+                    f"{a.name} = {deg:.2f}° is outside the axis limits [{a.min_deg:g}, {a.max_deg:g}]°: "
+                    "nothing moved; choose a target inside them"
+                )
+            if st.moving:
+                raise UsageError(f"{a.name} is still moving: nothing moved; retry when it stops")
         self.steppers.move_to("phi", math.degrees(phi))
         self.steppers.move_to("gamma", math.degrees(gamma))
         if self.plant is not None:

@@ -14,6 +14,7 @@ the clock map, off by a constant drawn per run.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -236,12 +237,14 @@ def doe_b(
     seed: int = 1,
     with_naive: bool = True,
     with_encoder: bool = True,
+    progress: Callable[[int], None] | None = None,
 ) -> tuple[list[CaseResult], dict[tuple[float, float, float, float], PointCloud]]:
     """Every (σv, rps, γ, φ) case with and without compensation (and the naive and encoder readings).
 
     One drive run per (σv, rps), seeded from `seed`, is scanned for all nine targets: the targets
     share the vibration realisation as a sequential scan would share its statistics.
-    Returns the case results and the compensated clouds by (σv, rps, γ, φ).
+    Returns the case results and the compensated clouds by (σv, rps, γ, φ); `progress(1)` is
+    called after each drive run (len(sigma_list)·len(rps_list) of them).
     """
     drive = drive_model(cfg)
     cpr = cfg.sil_or_default.measurement.encoder_counts_per_rev
@@ -282,4 +285,6 @@ def doe_b(
                         )
                         if comp:
                             clouds[(sv, rps, g, p)] = cloud
+            if progress is not None:
+                progress(1)
     return results, clouds
