@@ -8,8 +8,9 @@ quarters of it is harmless).
 
 `board` names the MCU board (firmware/board/<name>): identify must report it, and it sets how
 many state + PWM exchanges per second the daemon runs (`exchange_hz`): what each board carries
-with room to spare (ATmega328P 2 kHz at 80 % CPU in simavr with protocol v2's CRC-32 — 2.5 kHz
-would be 92 %, `make -C firmware test`; STM32F405 10 kHz, `make -C firmware bench-stm32`). `state_rate_hz` overrides it, up to the board's rate.
+with room to spare (ATmega328P 2 kHz at 80 % CPU in simavr with protocol v2's CRC-32, where
+2.5 kHz would be 92 %: `make -C firmware test`; STM32F405 10 kHz: `make -C firmware
+bench-stm32`). `state_rate_hz` overrides it, up to the board's rate.
 """
 
 from __future__ import annotations
