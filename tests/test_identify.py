@@ -1,0 +1,211 @@
+"""`tvsctl identify`: the excitation table, its config section, the control thread playing it, and
+the daemon's identify → export → analyze loop on the SIL plant.
+
+The kernel checks are exact, not timed: every recorded tick carries its wake time on the loop's
+clock, and the row it must have played is floor((wake − t0) / period); the command and the speed
+reference are rebuilt from what the tick saw (as tests/test_control_runner.py rebuilds the law).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import wait_for
+
+from tvsd.config import IdentifySettings, load_config
+from tvsd.control import scanning
+from tvsd.control.excitation import build
+from tvsd.control.runner import Runner
+from tvsd.control.setup import Setup
+from tvsd.errors import ConfigError, UsageError
+from tvsd.model import params as P
+
+CONFIG = Path(__file__).resolve().parent.parent / "config" / "tvsd.yaml"
+
+
+# --- config ------------------------------------------------------------------------------------------
+def _config_with(tmp_path: Path, section: str) -> Path:
+    text = CONFIG.read_text().replace("sil_profile: sil.yaml", f"sil_profile: {CONFIG.parent / 'sil.yaml'}")
+    path = tmp_path / "tvsd.yaml"
+    path.write_text(text + "\nidentify:\n" + section)
+    return path
+
+
+@pytest.mark.parametrize(
+    "section,expect",
+    [
+        ("  prbs_v: 9\n", "identify.prbs_v: must be at most 6 V"),
+        ("  kinds: [steps, chirp]\n", "identify.kinds[1]: expected one of steps, multisine, prbs"),
+        ("  seconds: 200\n", "identify.seconds: must be at most max_seconds (120 s)"),
+        (
+            "  step_rps: 2\n",
+            "identify.step_rps: the speed excitation (step_rps + multisine_rps of the kinds on) reaches 2.2",
+        ),
+        ("  multisine_max_hz: 200\n", "identify.multisine_max_hz: must be at most 100 Hz"),
+        ("  prbs_clock_s: 0.0001\n", "identify.prbs_clock_s: must be at least 0.0004 s"),
+        ("  prbs_v: 6.5\n", "identify.prbs_v: must be at most 6 V"),
+        (
+            "  min_rps: 59.5\n",
+            "identify.min_rps: 59.5 rev/s plus the excitation (0.7) exceeds daemon.max_rps",
+        ),
+        ("  sekonds: 5\n", "identify.sekonds: unknown key; did you mean 'seconds'?"),
+    ],
+)
+def test_a_bad_identify_section_names_its_line(tmp_path, section, expect):
+    path = _config_with(tmp_path, section)
+    line = len(path.read_text().splitlines())  # the key is the file's last line
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert f"{path}:{line}: {expect}" in str(err.value)
+
+
+def test_prbs_beyond_half_the_drive_is_refused(tmp_path):
+    """Half the drive's ±12 V left for the law: 6 V is the bound, named with the drive's limit."""
+    path = _config_with(tmp_path, "  prbs_v: 5\n")
+    load_config(path)  # 5 V < 6 V: fine
+    text = path.read_text().replace("u_max_v: 12.0", "u_max_v: 8.0")
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=r"identify.prbs_v: 5 V is more than half of drive.u_max_v \(8 V\)"):
+        load_config(path)
+
+
+def test_settings_made_in_code_obey_the_same_rules():
+    with pytest.raises(UsageError, match="kinds: unknown excitation 'chirp'"):
+        IdentifySettings(kinds=("chirp",))
+    with pytest.raises(UsageError, match="seconds: must be at least 1 s"):
+        IdentifySettings(seconds=0.5)
+
+
+# --- the table ---------------------------------------------------------------------------------------
+def test_the_table_is_bounded_and_holds_each_kind():
+    """Default settings: the speed excitation within ±max_delta_rps; steps at ±step_rps and 0, each
+    held step_hold_s, both directions; the PRBS at ±prbs_v with bit time prbs_clock_s and about as
+    many +1 as −1 bits; the multisine's power inside [min_hz, max_hz] (99 %); seed-reproducible."""
+    s = IdentifySettings()
+    ex = build(s)
+    rate = s.table_rate_hz
+    assert len(ex.d_rps) == round(s.seconds * rate) and ex.period_s == 1 / rate
+    assert np.max(np.abs(ex.d_rps)) <= s.max_delta_rps
+    steps = build(IdentifySettings(kinds=("steps",)))
+    levels = set(np.unique(steps.d_rps))
+    assert levels <= {-s.step_rps, 0.0, s.step_rps} and len(levels) == 3
+    changes = np.flatnonzero(np.diff(steps.d_rps)) + 1
+    assert np.all(np.diff(changes) % round(s.step_hold_s * rate) == 0)
+    prbs = build(IdentifySettings(kinds=("prbs",)))
+    assert set(np.unique(prbs.d_volts)) == {-s.prbs_v, s.prbs_v}
+    edges = np.flatnonzero(np.diff(prbs.d_volts)) + 1
+    assert np.all(edges % round(s.prbs_clock_s * rate) == 0)
+    assert abs(np.mean(prbs.d_volts)) < 0.05 * s.prbs_v
+    ms = build(IdentifySettings(kinds=("multisine",)))
+    assert np.max(np.abs(ms.d_rps)) == pytest.approx(s.multisine_rps, rel=1e-9)
+    spec = np.abs(np.fft.rfft(ms.d_rps)) ** 2
+    f = np.fft.rfftfreq(len(ms.d_rps), ex.period_s)
+    band = (f >= 0.5 * s.multisine_min_hz) & (f <= 1.5 * s.multisine_max_hz)
+    assert spec[band].sum() > 0.99 * spec.sum()
+    again = build(s)
+    assert np.array_equal(again.d_rps, ex.d_rps) and np.array_equal(again.d_volts, ex.d_volts)
+    assert not np.array_equal(build(IdentifySettings(seed=2)).d_volts, ex.d_volts)
+
+
+# --- the control thread plays it ---------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def setup() -> Setup:
+    s = Setup.from_config(load_config(params="default"))
+    warm = Runner(s, excitation_rows=10)
+    warm.start(max_ticks=2)
+    warm.join(120.0)
+    return s
+
+
+def _law(eps: float, eps_dot: float, g: tuple[float, float, float, float], umax: float) -> float:
+    gp, gd, gr, g0 = g
+    u = gp * math.tanh(eps) + gd * math.tanh(eps_dot) + gr * math.tanh(g0 * eps)
+    return max(-umax, min(umax, u))
+
+
+def test_the_loop_plays_the_table_at_its_own_tick_times(setup: Setup) -> None:
+    """SIL runner scanning at 15 rev/s: a 0.4 s table of speed steps (±0.5 rev/s) and a ±1 V PRBS.
+    For every tick, the row due at its wake time is the one it used: the speed reference ramps
+    toward 15 + d_rps of that row, and the command is the law's output plus d_volts (clipped at the
+    drive), to 1e-12. Ticks before t0 and after the table play nothing; the table switches off."""
+    r = Runner(setup, excitation_rows=1000)
+    r.scan(15.0)
+    r.start()
+    try:
+        wait_for(lambda: r.ticks, 30.0, "3000 ticks", ok=lambda n: n > 3000)
+        rows = 400
+        d_rps = np.repeat([0.5, -0.5, 0.0, 0.5], rows // 4)
+        d_volts = np.repeat(np.where(np.random.default_rng(1).random(rows // 4) > 0.5, 1.0, -1.0), 4)
+        t0_ns = r.set_excitation(d_rps, d_volts, 1e-3)
+        assert r.excitation_active
+        wait_for(lambda: r.excitation_active, 30.0, "the table to end", ok=lambda on: not on)
+        end = r.ticks
+        wait_for(lambda: r.ticks, 30.0, "ticks after the table", ok=lambda n: n > end + 100)
+    finally:
+        r.stop(5.0)
+    rec = r.recent_ticks()
+    wake_ns = r.start_ns + np.round(rec["t"] * 1e9).astype(np.int64)
+    row = np.floor_divide(wake_ns - t0_ns, 1_000_000)
+    played = (row >= 0) & (row < rows)
+    assert played.sum() > 0, "no tick inside the table's time"
+    p = setup.plant
+    g = setup.gains.as_tuple()
+    accel = 2 * math.pi * setup.scan_accel_rps2
+    # ticks within 1 µs of a row edge: the float time stamp cannot say which row (skipped)
+    clear = np.abs((wake_ns - t0_ns) % 1_000_000) > 1000
+    checked = 0
+    for k in range(1, len(rec)):
+        cur, prev = rec[k], rec[k - 1]
+        if not clear[k] or row[k] < -1 or row[k] > rows + 1:
+            continue
+        on = bool(played[k])
+        dr = d_rps[row[k]] if on else 0.0
+        dv = d_volts[row[k]] if on else 0.0
+        dt = cur["dt"]
+        target = 2 * math.pi * (15.0 + dr)
+        ramp = scanning.ramp_toward.py_func(prev["omega_ref"], target, accel * dt)
+        assert cur["omega_ref"] == pytest.approx(ramp, abs=1e-9), f"tick {k}, row {row[k]}"
+        alpha = (cur["omega_ref"] - prev["omega_ref"]) / dt
+        u_ff = scanning.feedforward.py_func(
+            cur["omega_ref"], alpha, p[P.P_J], p[P.P_KV] + p[P.P_S2], p[P.P_KM], p[P.P_KB],
+            p[P.P_R], p[P.P_KU], p[P.P_TC], p[P.P_TS], p[P.P_V0],
+        )  # fmt: skip
+        lim = max(setup.u_max - abs(u_ff), 0.0)
+        law = _law(cur["phi_ref"] - cur["phi"], cur["omega_ref"] - cur["omega"], g, lim) + u_ff
+        expect = max(-setup.u_max, min(setup.u_max, law + dv))
+        assert cur["u"] == pytest.approx(expect, abs=1e-12), f"tick {k}, row {row[k]}"
+        checked += 1
+    assert checked >= played.sum() // 2  # however late the machine woke the loop
+
+
+def test_a_fault_or_a_mode_change_ends_the_excitation(setup: Setup) -> None:
+    """The loop plays the table only while scanning without a fault: an overrun latch (the loop's
+    safe state) clears it at once and the command is 0; so does going idle."""
+    r = Runner(setup, excitation_rows=100_000)
+    r.scan(10.0)
+    r.start()
+    try:
+        wait_for(lambda: r.ticks, 30.0, "1000 ticks", ok=lambda n: n > 1000)
+        r.set_excitation(np.full(100_000, 0.5), np.full(100_000, 0.5), 1e-3)  # 100 s
+        wait_for(
+            lambda: r.recent_ticks(1)["omega_ref"][0], 30.0, "the step", ok=lambda w: w > 2 * math.pi * 10.01
+        )
+        r.inject_overrun(3.0)
+        wait_for(lambda: r.fault, 30.0, "the overrun latch")
+        r.inject_overrun(0)
+        wait_for(lambda: r.excitation_active, 5.0, "the excitation off", ok=lambda on: not on)
+        assert r.command == 0.0
+        r.clear_fault()
+        r.set_excitation(np.full(100_000, 0.5), np.full(100_000, 0.5), 1e-3)
+        now = r.ticks
+        wait_for(lambda: r.ticks, 30.0, "ticks", ok=lambda n: n > now + 100)
+        assert r.excitation_active
+        r.idle()
+        wait_for(lambda: r.excitation_active, 5.0, "the excitation off when idle", ok=lambda on: not on)
+        with pytest.raises(ValueError, match=r"the runner holds 1 \.\. 100000"):
+            r.set_excitation(np.zeros(100_001), np.zeros(100_001), 1e-3)
+    finally:
+        r.stop(5.0)
