@@ -30,7 +30,7 @@ CONFIG = Path(__file__).resolve().parent.parent / "config" / "tvsd.yaml"
 def _config_with(tmp_path: Path, section: str) -> Path:
     text = CONFIG.read_text().replace("sil_profile: sil.yaml", f"sil_profile: {CONFIG.parent / 'sil.yaml'}")
     path = tmp_path / "tvsd.yaml"
-    path.write_text(text + "\nidentify:\n" + section)
+    path.write_text(text.split("\nidentify:")[0] + "\nidentify:\n" + section)
     return path
 
 
@@ -209,3 +209,26 @@ def test_a_fault_or_a_mode_change_ends_the_excitation(setup: Setup) -> None:
             r.set_excitation(np.zeros(100_001), np.zeros(100_001), 1e-3)
     finally:
         r.stop(5.0)
+
+
+def test_playing_the_table_allocates_nothing(setup: Setup) -> None:
+    """NRT allocation count flat while the loop plays an excitation (SIL, scanning): the table is
+    preallocated and read in place."""
+    from numba.core.runtime import _nrt_python as nrt_stats  # type: ignore[attr-defined]
+    from numba.core.runtime import rtsys
+
+    nrt_stats.memsys_enable_stats()
+    try:
+        r = Runner(setup, excitation_rows=20_000)
+        r.scan(10.0)
+        counts = []
+        for n in (200, 5200):
+            r.set_excitation(np.full(20_000, 0.3), np.full(20_000, 0.5), 1e-3)
+            a = rtsys.get_allocation_stats().alloc
+            r.start(max_ticks=n)
+            r.join(60.0)
+            assert r.excitation_active, "the table was still playing"
+            counts.append(rtsys.get_allocation_stats().alloc - a)
+    finally:
+        nrt_stats.memsys_disable_stats()
+    assert (counts[1] - counts[0]) / 5000 == 0.0
