@@ -8,6 +8,7 @@ reference are rebuilt from what the tick saw (as tests/test_control_runner.py re
 
 from __future__ import annotations
 
+import asyncio
 import math
 from pathlib import Path
 
@@ -232,3 +233,147 @@ def test_playing_the_table_allocates_nothing(setup: Setup) -> None:
     finally:
         nrt_stats.memsys_disable_stats()
     assert (counts[1] - counts[0]) / 5000 == 0.0
+
+
+# --- the daemon's identify run, on a SIL runner and a real recording ---------------------------------
+class _Host:
+    """The parts of tvsd.daemon.app.Daemon an IdentifyRun uses, around a SIL runner (the plant in
+    the loop) and a real SessionRecording; tests/test_identify_daemon.py runs the real daemon."""
+
+    def __init__(self, runner: Runner, data_dir: Path) -> None:
+        from tvsd.daemon.state import DaemonState
+
+        self.runner, self.cfg, self.data_dir = runner, load_config(), data_dir
+        self.state = DaemonState.SPINNING
+        self.target_rps = 15.0
+        self.recording = None
+        self.identification = None
+        self.marks: list[tuple[str, dict]] = []
+
+    @property
+    def measured_rps(self) -> float:
+        return float(np.mean(self.runner.recent_ticks(100)["omega"])) / (2 * math.pi)
+
+    def start_recording(self) -> Path:
+        from tvsd.daemon.session_recording import SessionRecording
+
+        path = self.data_dir / f"rec-{len(list(self.data_dir.glob('rec-*')))}"
+        self.recording = SessionRecording(path, "", from_tick=self.runner.ticks)
+        return path
+
+    def mark(self, event: str, **data: object) -> None:
+        self.marks.append((event, data))
+        if self.recording is not None:
+            self.recording.mark(event, **data)
+
+    async def stop_recording(self) -> Path | None:
+        rec, self.recording = self.recording, None
+        if rec is None:
+            return None
+        rec.close()
+        return rec.path
+
+    async def drain(self) -> None:
+        while True:
+            await asyncio.sleep(0.02)
+            if self.recording is not None:
+                self.recording.drain(self.runner)
+
+
+def _run_identify(host: _Host, settings: IdentifySettings, during=None) -> dict:
+    from tvsd.daemon.identify import IdentifyRun
+
+    async def main() -> dict:
+        drain = asyncio.create_task(host.drain())
+        run = IdentifyRun(host, settings)  # type: ignore[arg-type]
+        run.check()
+        host.identification = run  # type: ignore[assignment]
+        run.start()
+        if during is not None:
+            await during(host, run)
+        while not run.finished:
+            await asyncio.sleep(0.05)
+        drain.cancel()
+        return run.to_json()
+
+    return asyncio.run(main())
+
+
+def _rps(r: Runner) -> float:
+    ticks = r.recent_ticks(100)
+    return float(np.mean(ticks["omega"])) / (2 * math.pi) if len(ticks) else 0.0
+
+
+def _spinning(setup: Setup, rps: float) -> Runner:
+    r = Runner(setup, excitation_rows=20_000)
+    r.scan(rps)
+    r.start()
+    wait_for(lambda: _rps(r), 60.0, "spin-up", ok=lambda w: abs(w - rps) < 0.5)
+    return r
+
+
+def _ramped(d_rps: np.ndarray, period_s: float, accel_rps2: float) -> np.ndarray:
+    """The table's speed offsets as the scanning ramp passes them (rate-limited)."""
+    out = np.empty(len(d_rps))
+    level = 0.0
+    for k, target in enumerate(d_rps):
+        level += min(max(target - level, -accel_rps2 * period_s), accel_rps2 * period_s)
+        out[k] = level
+    return out
+
+
+def test_an_identify_run_records_its_table_and_ends_done(setup: Setup, tmp_path: Path) -> None:
+    """A 3 s run on the SIL runner at 15 rev/s: done; the recording has the table (channel
+    `excitation`), the reference that followed it, and the marks; the recording it opened is closed."""
+    from tvsd.recording.reader import open_recording
+
+    r = _spinning(setup, 15.0)
+    host = _Host(r, tmp_path)
+    try:
+        res = _run_identify(host, IdentifySettings(seconds=3.0, step_hold_s=0.5))
+    finally:
+        r.stop(5.0)
+    assert res["outcome"] == "done" and res["state"] == "done", res
+    assert host.recording is None, "identify closes the recording it opened"
+    rec = open_recording(Path(res["recording"]))
+    exc, ref = rec.channels["excitation"], rec.channels["reference"]
+    assert len(exc) == 3000 and exc["t"][0] == pytest.approx(res["t0_s"])
+    played = (ref["t"] >= exc["t"][0]) & (ref["t"] <= exc["t"][-1])
+    seen = ref["omega_ref"][played] / (2 * math.pi) - 15.0
+    assert np.corrcoef(seen, np.interp(ref["t"][played], exc["t"], exc["d_rps"]))[0, 1] > 0.9
+    assert [m["event"] for m in rec.marks if m["event"].startswith("identify")] == [
+        "identify_start",
+        "identify_end",
+    ]
+
+
+def test_an_identify_run_aborts_on_a_fault_and_refuses_what_it_must(setup: Setup, tmp_path: Path) -> None:
+    """A loop fault (overrun latch) during the run: aborted, the excitation off, the reason named.
+    Refused with −32002 too slow for the swing, not spinning, or still ramping."""
+    from tvsd.daemon.identify import IdentifyRun
+    from tvsd.daemon.rpc import STATE_ERROR, RpcError
+    from tvsd.daemon.state import DaemonState
+
+    r = _spinning(setup, 15.0)
+    host = _Host(r, tmp_path)
+
+    async def overrun(h: _Host, run) -> None:
+        await asyncio.sleep(0.5)
+        h.runner.inject_overrun(3.0)
+
+    try:
+        res = _run_identify(host, IdentifySettings(seconds=20.0), during=overrun)
+        assert not r.excitation_active
+        r.inject_overrun(0)
+    finally:
+        r.stop(5.0)
+    assert res["outcome"] == "aborted" and "control thread fault (OVERRUN)" in res["reason"], res
+    for state, target, why in (
+        (DaemonState.IDLE, 15.0, "set a speed first"),
+        (DaemonState.SPINNING, 5.5, "spin to at least 5.7 rev/s"),
+        (DaemonState.SPINNING, 30.0, "not yet at its setpoint 30"),
+    ):
+        host.state, host.target_rps, host.identification = state, target, None
+        with pytest.raises(RpcError, match=why) as err:
+            IdentifyRun(host, IdentifySettings()).check()  # type: ignore[arg-type]
+        assert err.value.code == STATE_ERROR

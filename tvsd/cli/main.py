@@ -40,6 +40,7 @@ COMMANDS: dict[str, str] = {
     "mcu": "tvsd.cli.mcu",
     "export": "tvsd.cli.export",
     "latency": "tvsd.cli.latency",
+    "identify": "tvsd.cli.identify",  # a thin client of tvsd's socket too, with its own progress
     **dict.fromkeys(_DAEMON_COMMANDS, "tvsd.cli.daemon_cmds"),  # thin clients of tvsd's socket
 }
 
