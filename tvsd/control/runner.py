@@ -506,9 +506,12 @@ class Runner:
         """Ticks per lateness bin (lower edges: tvsd.control.latency.EDGES_NS), a copy."""
         return self.hist.copy()
 
-    def recent_ticks(self, n: int | None = None) -> np.ndarray:
-        """The last n recorded ticks, oldest first: a copy, a structured array of TICK_DTYPE."""
-        ticks, size = self.ticks, self.rec.shape[0]
+    def recent_ticks(self, n: int | None = None, end: int | None = None) -> np.ndarray:
+        """The last n recorded ticks before tick number `end` (default: now), oldest first: a copy,
+        a structured array of TICK_DTYPE. A reader that counted the ticks itself passes its count
+        as `end`: the loop goes on ticking between two reads, and "the last n" of a later count
+        would repeat rows it already has and skip as many."""
+        ticks, size = (self.ticks if end is None else min(end, self.ticks)), self.rec.shape[0]
         n = min(ticks, size) if n is None else min(n, ticks, size)
         idx = np.arange(ticks - n, ticks) % size
         return self.rec[idx].view(TICK_DTYPE).reshape(n)

@@ -68,8 +68,8 @@ class SessionRecording:
         ticks = runner.ticks
         n = min(ticks - self._last_tick, runner.ring_size)
         self._last_tick = ticks
-        if n > 0:
-            self.loop_ticks(runner.recent_ticks(n))
+        if n > 0:  # the rows up to the count just read: the loop ticks on meanwhile
+            self.loop_ticks(runner.recent_ticks(n, end=ticks))
 
     def loop_ticks(self, rows: np.ndarray) -> None:
         """Average ticks (TICK_DTYPE rows) into RECORD_PERIOD_S bins of their own time stamps: a
