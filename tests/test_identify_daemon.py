@@ -66,21 +66,34 @@ def test_identify_records_its_excitation_feeds_analyze_and_a_fault_aborts_it(dae
     assert np.corrcoef(u - np.convolve(u, np.ones(51) / 51, "same"), d_volts)[0, 1] > 0.3, "PRBS in u"
 
     # --- export → analyze ----------------------------------------------------------------------------
+    # A loaded machine stalls the loop now and then: export refuses a gap (a missing 1 ms bin) and
+    # says to export around it, so the longest gap-free stretch is exported.
+    t = loop["t"] - loop["t"][0]
+    cuts = np.flatnonzero(np.diff(t) > 1.5e-3)
+    starts, ends = np.r_[0, cuts + 1], np.r_[cuts, len(t) - 1]
+    k = int(np.argmax(t[ends] - t[starts]))
+    span = (float(t[starts[k]]), float(t[ends[k]]))
     out = tmp_path / "identify.csv"
-    tvsctl(sock, "export", str(path), "--csv", str(out))
-    ana = subprocess.run(
-        [sys.executable, "-m", "tvsd.cli.main", "analyze", str(out), "--json", "--quiet"],
-        capture_output=True,
-        text=True,
-        timeout=300,
+    cli = [sys.executable, "-m", "tvsd.cli.main"]
+    window = ["--start", f"{span[0]:.4f}", "--end", f"{span[1]:.4f}"]
+    exp = subprocess.run(
+        [*cli, "export", str(path), "--csv", str(out), *window], capture_output=True, text=True, timeout=60
     )
-    assert ana.returncode == 0, ana.stderr
-    verdict = json.loads(ana.stdout)
-    assert verdict["cause"] and "lyapunov" in verdict, verdict
+    assert exp.returncode == 0, exp.stderr
+    ana = subprocess.run(
+        [*cli, "analyze", str(out), "--json", "--quiet"], capture_output=True, text=True, timeout=300
+    )
+    if span[1] - span[0] >= 10.0:
+        assert ana.returncode == 0, ana.stderr
+        verdict = json.loads(ana.stdout)
+        assert verdict["cause"] and "lyapunov" in verdict, verdict
+    else:  # too short a stretch to identify anything: said in one line, exit 2 (DESIGN.md)
+        assert ana.returncode in (0, 2) and len(ana.stderr.strip().splitlines()) <= 1, ana.stderr
 
     # --- a fault aborts it, the excitation off --------------------------------------------------------
-    started = rpc(sock, "identify", seconds=30)["result"]
-    assert started["state"] == "running"
+    reply = rpc(sock, "identify", seconds=30)
+    assert "result" in reply, reply  # refused: the daemon says why (a loaded machine: a fault)
+    assert reply["result"]["state"] == "running"
     wait_for(lambda: _status(sock), 30, "the excitation under way", ok=lambda s: s["elapsed_s"] > 1.0)
     err = rpc(sock, "identify")["error"]
     assert err["code"] == -32002 and "already running" in err["message"]
