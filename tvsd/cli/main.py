@@ -43,6 +43,7 @@ COMMANDS: dict[str, str] = {
     "export": "tvsd.cli.export",
     "latency": "tvsd.cli.latency",
     "watch": "tvsd.cli.watch",
+    "identify": "tvsd.cli.identify",  # a thin client of tvsd's socket too, with its own progress
     **dict.fromkeys(_DAEMON_COMMANDS, "tvsd.cli.daemon_cmds"),  # thin clients of tvsd's socket
 }
 

@@ -19,6 +19,12 @@ MODE, REF, GP, GD, GR, G0, UMAX, ACCEL, MAXLAG, FF = range(10)
 N_LAW = 10
 MODE_OFF, MODE_POSITION, MODE_SCAN = 0, 1, 2
 
+# The excitation table (tvsd.control.excitation → Runner.set_excitation), one row per table period:
+# EXC_RPS is added to the scanning speed reference (rev/s, before the ramp), EXC_VOLTS to the law's
+# output (V, then clipped at ±UMAX). The loop plays it in scanning mode only.
+EXC_RPS, EXC_VOLTS = 0, 1
+N_EXC = 2
+
 
 def write_gains(words: np.ndarray, gains: Gains) -> None:
     words[GP], words[GD], words[GR], words[G0] = gains.as_tuple()

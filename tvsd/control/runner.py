@@ -12,6 +12,9 @@ writes the command, and exchanges everything with the I/O side through prealloca
   seqlock around φ, ω and that time).
 - `vals` (float64): the law's words (tvsd.control.layout), the measurement V_PHI, V_OMEGA (written
   by the I/O side), outputs V_U … V_DT.
+- `exc` (float64, rows × tvsd.control.layout.N_EXC): the excitation table `tvsctl identify` plays
+  (Runner.set_excitation): row k from K_EXC_T0_NS + k·K_EXC_STEP_NS on, K_EXC_N rows (0: off).
+  Scanning mode only; a fault or any other mode clears K_EXC_N, so the excitation stops that tick.
 - `hist`: the lateness histogram; `rec`: a ring of the last ticks (what the law saw and did),
   indexed by tick number, which the asyncio side reads in batches (`recent_ticks`, TICK_DTYPE).
 
@@ -69,7 +72,9 @@ from tvsd.model import plant as K
     L.N_TIMING, L.N_TIMING + 7
 )
 K_SAMPLE_NS, K_MEAS_SEQ = L.N_TIMING + 7, L.N_TIMING + 8
-N_INTS = L.N_TIMING + 9
+K_EXC_T0_NS, K_EXC_STEP_NS, K_EXC_N = L.N_TIMING + 9, L.N_TIMING + 10, L.N_TIMING + 11
+N_INTS = L.N_TIMING + 12
+EXC_LEAD_NS = 2_000_000  # an excitation starts this long after it is set: whole rows, from row 0
 
 
 class LoopFault(enum.IntEnum):
@@ -134,6 +139,19 @@ def _read_measurement(
 
 
 @njit(cache=True, nogil=True)
+def _excitation(ints: np.ndarray, exc: np.ndarray, wake: int) -> tuple[float, float]:
+    """The excitation row due at `wake` (speed offset rev/s, voltage offset V); past the last row
+    the table switches itself off."""
+    k = (wake - ints[K_EXC_T0_NS]) // ints[K_EXC_STEP_NS]
+    if k < 0:
+        return 0.0, 0.0
+    if k >= ints[K_EXC_N]:
+        ints[K_EXC_N] = 0
+        return 0.0, 0.0
+    return exc[k, W.EXC_RPS], exc[k, W.EXC_VOLTS]
+
+
+@njit(cache=True, nogil=True)
 def control_loop(
     ints: np.ndarray,
     vals: np.ndarray,
@@ -148,6 +166,7 @@ def control_loop(
     vib: np.ndarray,
     u_hold: np.ndarray,
     plant_dt: float,
+    exc: np.ndarray,
 ) -> None:
     """Run ticks until ints[K_STOP] (or K_MAX_TICKS); all state lives in the arrays."""
     ints[L.K_RUNNING] = 1
@@ -199,6 +218,9 @@ def control_loop(
                 ints[K_FAULT] = FAULT_STALE
                 ints[K_FAULT_NS] = wake
                 ints[K_FAULT_MEAS_NS] = ints[K_MEAS_NS]
+        if ints[K_FAULT] != 0 or mode != MODE_SCAN:
+            ints[K_EXC_N] = 0  # the excitation is for scanning only, and ends with any fault
+        d_rps, d_u = _excitation(ints, exc, wake) if ints[K_EXC_N] > 0 else (0.0, 0.0)
         if ints[K_FAULT] != 0 or mode == MODE_IDLE:
             u = 0.0
             phi_ref = phi  # a restart begins where the shaft is, not where it was
@@ -212,7 +234,7 @@ def control_loop(
             # measured step, and slips beyond the allowed lag (anti-windup), as in the offline simulation.
             omega_prev = omega_ref
             omega_ref = ramp_toward(
-                omega_ref, 2.0 * math.pi * vals[V_REF], 2.0 * math.pi * vals[V_ACCEL] * dt
+                omega_ref, 2.0 * math.pi * (vals[V_REF] + d_rps), 2.0 * math.pi * vals[V_ACCEL] * dt
             )
             phi_ref += omega_ref * dt
             alpha = (omega_ref - omega_prev) / dt if dt > 0.0 else 0.0
@@ -220,6 +242,7 @@ def control_loop(
                 phi, omega, phi_ref, omega_ref, alpha, vals[V_MAXLAG], vals[V_FF] != 0.0 and dt > 0.0,
                 J, kv, kM, kb, R, ku, tc, tsv, v0, vals[V_GP], vals[V_GD], vals[V_GR], vals[V_G0], umax,
             )  # fmt: skip
+            u = min(max(u + d_u, -umax), umax)  # the PRBS rides on the law's output, within the drive
         vals[V_U] = u
         vals[V_PHI_REF] = phi_ref
         vals[V_OMEGA_REF] = omega_ref
@@ -310,6 +333,7 @@ class Runner:
         streak_limit: int = 1000,  # the daemon's default: 100 ms of late ticks at 10 kHz
         record: int = 65536,
         realtime: bool = False,
+        excitation_rows: int = 0,
     ) -> None:
         self._setup = setup  # the plant's arrays; the gains live in `vals` from here on
         self.sil = sil
@@ -322,6 +346,8 @@ class Runner:
         W.pack_law(self.vals, setup)
         self.hist = np.zeros(L.N_BINS, dtype=np.int64)
         self.rec = np.zeros((record, N_REC))
+        self.exc = np.zeros((max(excitation_rows, 1), W.N_EXC))  # preallocated: identify allocates nothing
+        self._exc_rows = excitation_rows
         self.ts = np.zeros(2, dtype=np.int64)
         self.plant_dt = setup.dt / setup.substeps
         self.state = K.state_array(self.plant_dt)  # room for the delay ring: no allocation per tick
@@ -364,6 +390,43 @@ class Runner:
     def gains(self) -> Gains:
         """The gains the loop runs with now: the one source of truth once the loop is built."""
         return W.read_gains(self.vals)
+
+    # --- the excitation (tvsctl identify) -----------------------------------------------------------
+    def set_excitation(
+        self, d_rps: np.ndarray, d_volts: np.ndarray, period_s: float, start_ns: int | None = None
+    ) -> int:
+        """Play an excitation in scanning mode: row k adds d_rps[k] (rev/s) to the speed reference
+        and d_volts[k] (V) to the command, from start_ns + k·period_s (CLOCK_MONOTONIC; default
+        EXC_LEAD_NS from now). The table is copied into the preallocated one here, off the loop.
+        Returns the start time. Any fault or mode change ends it (`excitation_active`)."""
+        n = len(d_rps)
+        if len(d_volts) != n or not 0 < n <= self._exc_rows:
+            raise ValueError(f"excitation of {n} rows: the runner holds 1 .. {self._exc_rows}")
+        if not period_s > 0:
+            raise ValueError(f"excitation period {period_s!r} s: must be positive")
+        ints = self.ints
+        ints[K_EXC_N] = 0  # off while the table is rewritten
+        self.exc[:n, W.EXC_RPS] = d_rps
+        self.exc[:n, W.EXC_VOLTS] = d_volts
+        ints[K_EXC_STEP_NS] = round(period_s * L.NS)
+        t0 = time.monotonic_ns() + EXC_LEAD_NS if start_ns is None else start_ns
+        ints[K_EXC_T0_NS] = t0
+        ints[K_EXC_N] = n  # published last: the loop reads the count first
+        return t0
+
+    def clear_excitation(self) -> None:
+        """End the excitation from the next tick on."""
+        self.ints[K_EXC_N] = 0
+
+    @property
+    def excitation_active(self) -> bool:
+        """An excitation is set and not yet over (the loop clears it at its end, on a fault, or when
+        the mode leaves scanning)."""
+        return bool(self.ints[K_EXC_N] > 0)
+
+    @property
+    def excitation_capacity_rows(self) -> int:
+        return self._exc_rows
 
     # --- the measurement (hardware mode) ------------------------------------------------------------
     def measured(
@@ -460,7 +523,8 @@ class Runner:
         return self.hist.copy()
 
     def recent_ticks(self, n: int | None = None) -> np.ndarray:
-        """The last n recorded ticks, oldest first: a copy, a structured array of TICK_DTYPE."""
+        """The last n recorded ticks, oldest first: a copy, a structured array of TICK_DTYPE. The
+        loop ticks on between calls: to move every tick once, read by number (`ticks_since`)."""
         ticks, size = self.ticks, self.rec.shape[0]
         n = min(ticks, size) if n is None else min(n, ticks, size)
         idx = np.arange(ticks - n, ticks) % size
@@ -507,6 +571,7 @@ class Runner:
             s.vibration,
             self.u_hold,
             self.plant_dt,
+            self.exc,
         )
         self.cpu_s = time.thread_time() - cpu0
 

@@ -5,8 +5,8 @@ The methods read the daemon's state and call its command methods (tvsd.daemon.ap
 change its parts themselves. Results become JSON here, at the edge.
 Methods (docs/architecture.md, "Daemon API"): status, speed, scan_start, scan_stop, aim, aim_xyz, gains_get,
 gains_set, imu_calibrate, record_start, record_stop, record_window, faults_list, faults_clear,
-inject_fault (SIL devices only), shutdown. The point stream and status are subscriptions
-(tvsd/daemon/rpc.py: `subscribe`).
+inject_fault (SIL devices only), identify, identify_status, identify_abort, shutdown. The point
+stream and status are subscriptions (tvsd/daemon/rpc.py: `subscribe`).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from tvsd.config import Gains
 from tvsd.control.conditions import check_gains, warnings
+from tvsd.daemon.identify import IdentifyRun, settings_for
 from tvsd.daemon.rpc import DEVICE_ERROR, INVALID_PARAMS, STATE_ERROR, RpcError
 from tvsd.daemon.state import DaemonState
 from tvsd.errors import TvsdError, UsageError
@@ -199,6 +200,28 @@ class Api:
         except TvsdError as exc:
             raise _rpc_error(exc) from None
         raise RpcError(INVALID_PARAMS, f"device {device!r}: use mcu, imu or control")
+
+    async def api_identify(
+        self, seconds: float | None = None, kinds: list[str] | None = None, seed: int | None = None
+    ) -> dict[str, Any]:
+        """A bounded excitation on top of spinning/scanning, recorded (tvsd/daemon/identify.py);
+        amplitudes and limits from the config's identify: section. Returns at once: poll
+        identify_status."""
+        self._refuse_in_fault()
+        run = IdentifyRun(self.d, settings_for(self.d.cfg.identify, seconds=seconds, kinds=kinds, seed=seed))
+        self.d.start_identify(run)
+        return run.to_json()
+
+    async def api_identify_status(self) -> dict[str, Any]:
+        run = self.d.identification
+        return run.to_json() if run is not None else {"state": "none", "outcome": None}
+
+    async def api_identify_abort(self) -> dict[str, Any]:
+        run = self.d.identification
+        if run is None or run.state != "running":
+            raise RpcError(STATE_ERROR, "no identify is running")
+        run.abort("aborted by request")
+        return run.to_json()
 
     async def api_shutdown(self) -> dict[str, Any]:
         asyncio.get_running_loop().call_later(0.05, self.d.request_stop)  # reply first

@@ -48,6 +48,7 @@ from tvsd.control.setup import Setup
 from tvsd.daemon.api import Api
 from tvsd.daemon.drive_link import DriveLink
 from tvsd.daemon.faults import LOOP_FAULTS, FaultEntry, FaultKind, FaultLog
+from tvsd.daemon.identify import IdentifyRun
 from tvsd.daemon.notify import Notifier
 from tvsd.daemon.rpc import Limits, RpcServer
 from tvsd.daemon.scan_session import PointCounters, ScanSession
@@ -84,6 +85,7 @@ class Daemon:
             sil=False,
             realtime=realtime,
             streak_limit=cfg.control.overrun_streak_ticks,
+            excitation_rows=round(cfg.identify.max_seconds * cfg.identify.table_rate_hz),
         )
         self.drive = DriveLink(
             cfg,
@@ -112,6 +114,7 @@ class Daemon:
         self.scan: ScanSession | None = None  # while scanning
         self.aim_deg = (60.0, 0.0)  # φ, γ: DoE B's middle target
         self.points = PointCounters()
+        self.identification: IdentifyRun | None = None  # the latest `identify` (tvsd/daemon/identify.py)
         self._stop = asyncio.Event()
         self.web: Any = None  # tvsd.daemon.web.server.WebView when cfg.web.enabled
         if cfg.web.enabled:  # built now: aiohttp's import and the floor kernel's load hold the GIL
@@ -209,6 +212,7 @@ class Daemon:
         self._stop.set()
 
     async def _shutdown(self) -> None:
+        self._abort_identify("the daemon is stopping")
         self._state.go(S.STOPPING)
         self.notifier.stopping()
         # Ramp the aperture down along the speed reference, bounded by the time the ramp needs.
@@ -411,12 +415,23 @@ class Daemon:
     ) -> None:
         """Safe state: the control thread commands 0 (and stays there until faults_clear)."""
         self.runner.idle()
+        self._abort_identify(f"fault: {cause}")
         self.target_rps = 0.0
         self.scan = None
         self._state.go(S.FAULT)
         self._fault(kind, cause, action, safe_after_ms)
         if self.recording is not None:
             self.record_window(self.cfg.daemon.fault_window_s, cause)
+
+    def start_identify(self, run: IdentifyRun) -> None:
+        """Start an excitation run, once `run.check()` passes (one at a time)."""
+        run.check()
+        self.identification = run
+        run.start()
+
+    def _abort_identify(self, reason: str) -> None:
+        if self.identification is not None:
+            self.identification.abort(reason)
 
     def _new_scan(self) -> None:
         """A new scan session at the current aim: IMU-compensated while the IMU is ok (ImuFeed

@@ -13,6 +13,8 @@ any of them to numpy/pandas users):
 - `pulses`     every pulse event from the MCU: host time, MCU ticks, channel (0 zero, 1 optical).
 - `points`     every point published, fields of tvsd.scan.points plus t_mono.
 - `imu`        every IMU sample: sensor (0 PL, 1 SA), sample number, host time, accel, gyro.
+- `excitation` what `identify` played (tvsd/daemon/identify.py): t (the loop's time axis, as
+               `loop`), d_rps added to the speed reference, d_volts added to the command.
 Marks: state changes, faults, windows, with their time.
 """
 
@@ -120,6 +122,11 @@ class SessionRecording:
                 "gx": gyro[:, 0], "gy": gyro[:, 1], "gz": gyro[:, 2],
             }
         )  # fmt: skip
+
+    def excitation(self, t: np.ndarray, d_rps: np.ndarray, d_volts: np.ndarray) -> None:
+        """The excitation table identify plays, each row at its time on the loop's axis."""
+        ch = self.recorder.channel("excitation", [("t", "<f8"), ("d_rps", "<f8"), ("d_volts", "<f8")])
+        ch.append({"t": t, "d_rps": d_rps, "d_volts": d_volts})
 
     def mark(self, event: str, **data: Any) -> None:
         self.recorder.mark(event, **data)
