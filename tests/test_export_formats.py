@@ -67,7 +67,7 @@ def test_the_old_numpy_recipe_fails_for_the_reason_the_readme_gives(
 ) -> None:
     out = tmp_path / "r.csv"
     export(capsys, str(rec), "--csv", str(out))
-    with pytest.raises(ValueError, match="got 4 columns instead of 1"):  # names from "# tvs-recording: 1"
+    with pytest.raises(ValueError, match=r"got \d+ columns instead of 1"):  # names from "# tvs-recording: 1"
         np.genfromtxt(out, delimiter=",", names=True, comments="#")
 
 

@@ -27,7 +27,8 @@ ALLOWED = {
     Path(__file__).resolve(): {"runner", "latency", "layout", "arrays"},
 }
 
-ARRAYS = re.compile(r"(?<!args)\.(vals|ints|rec|hist)\b(?!\s*=\s*np\.)")
+# not a call: matplotlib's `ax.hist(...)` is a method, the runner's arrays are indexed
+ARRAYS = re.compile(r"(?<!args)\.(vals|ints|rec|hist)\b(?!\s*=\s*np\.)(?!\s*\()")
 ALIAS = re.compile(
     r"from tvsd\.control import (?P<mod>\w+) as (?P<alias>\w+)"
     r"|import tvsd\.control\.(?P<mod2>\w+) as (?P<alias2>\w+)"

@@ -160,8 +160,12 @@ def test_the_imu_window_keeps_the_newest_samples_in_order():
 def _config_with(tmp_path: Path, web: str) -> Path:
     text = (CONFIG_DIR / "tvsd.yaml").read_text()
     text = text.replace("sil_profile: sil.yaml", f"sil_profile: {CONFIG_DIR / 'sil.yaml'}")
+    # the shipped file has a web: section: replace it (a second one is a duplicate key, refused)
+    start = text.index("\nweb:")
+    end = text.find("\n\n", start + 1)
+    rest = "" if end < 0 else text[end:]
     path = tmp_path / "tvsd.yaml"
-    path.write_text(text + "\nweb:\n" + web)
+    path.write_text(text[:start] + rest + "\nweb:\n" + web)
     return path
 
 
