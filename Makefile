@@ -34,7 +34,7 @@ lint: $(STAMP)
 	$(BIN)/lint-imports
 
 pytest: $(STAMP) host-lib
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=15
 
 # The firmware core built for the host (the virtual MCU behind --sil): built here, before tvsd
 # runs, never by tvsd itself. An installed wheel carries its own (setup.py).

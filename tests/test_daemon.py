@@ -22,6 +22,8 @@ from conftest import wait_for
 from tvsd.config import load_config
 from tvsd.recording.csvfile import read as read_recording
 
+pytestmark = pytest.mark.slow  # each test starts a SIL daemon (6-12 s of start-up on this machine)
+
 START_S = 60.0  # first start compiles the control kernel; later starts load it from the cache
 POLL_S = 0.2
 CONTROL_HZ = load_config().control.rate_hz  # the config `tvsd --sil` runs

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from test_daemon import daemon, tvsctl, wait_status, wait_ticks  # noqa: F401  (the fixture, by name)
 
 from tvsd.config import load_config
@@ -23,6 +24,8 @@ from tvsd.recording.reader import open_recording
 from tvsd.scan import pulses as PP
 from tvsd.scan.points import FLAG_COMPENSATED
 from tvsd.scan.stream import PointStream
+
+pytestmark = pytest.mark.slow  # spins a SIL daemon to 25 rev/s and scans (~60 s)
 
 MIN_GAIN = 3.0
 MIN_POINTS = 60  # a MAD of 60 values is good to ~15 %

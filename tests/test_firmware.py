@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # builds both images and runs the AVR one in simavr (~30 s)
+
 FIRMWARE = Path(__file__).resolve().parents[1] / "firmware"
 TOOLS = {
     "make": "make",
