@@ -105,11 +105,11 @@ def build(prep: Prepared, offset: bool, rotary: bool, fit_mask: np.ndarray | Non
     X = np.column_stack([X0, best[2]])
     names.append("s")
     design = Design(prep, y, X, tuple(names), moving, best[1], float(np.max(np.abs(u))))
-    design.options = _options(prep, rotary)
+    design.options = _options(prep, rotary, offset)
     return design
 
 
-def _options(prep: Prepared, rotary: bool) -> dict[str, list[Option]]:
+def _options(prep: Prepared, rotary: bool, offset: bool = False) -> dict[str, list[Option]]:
     d = prep.data
     rows, band = prep.rows, prep.band_rows
     u = d.u
@@ -155,9 +155,12 @@ def _options(prep: Prepared, rotary: bool) -> dict[str, list[Option]]:
             for k in range(2, n_max + 1)
         ]
     neg = w_full < 0
-    opts["friction_asymmetry"] = [
-        Option({}, np.column_stack([w * rows(neg.astype(float)), band(-neg.astype(float))]), ("cn", "fn"))
-    ]
+    # With an offset in the baseline, a Coulomb level by direction is that offset (1[ω<0] =
+    # (1 − sgn ω)/2): only the viscous slope can differ by direction.
+    asym = [w * rows(neg.astype(float))]
+    if not offset:
+        asym.append(band(-neg.astype(float)))
+    opts["friction_asymmetry"] = [Option({}, np.column_stack(asym), ("cn", "fn")[: len(asym)])]
     tf = t_frac
     opts["drift"] = [
         Option({"parameter": "R"}, band(tf * u)[:, None], ("dR",)),

@@ -106,6 +106,7 @@ def _physical(
         "damping": abs(s["c"] * J),
         "tau_c": abs(s["f"] * J),
         "J": abs(J) * math.hypot(s["a0"], s["a1"]) / abs(a),
+        "input_gain": math.hypot(s["a0"], s["a1"]),
     }
     return p, err
 
@@ -143,6 +144,7 @@ def diagnose(
     say("preparing the regression (band-limited rows, baseline and candidate columns)")
     prep = prepare(data, band)
     design = D.build(prep, data.offset_term, rotary)
+    design.back_emf = data.b_omega > 0 or data.u_unit == "V"
     if np.count_nonzero(design.rows_mask) < 10 * design.X.shape[1]:
         raise sense.DataFileError(
             f"{data.path or data.name}: the shaft moves in too few samples to identify the drive "

@@ -59,6 +59,11 @@ def baseline_problem(p: dict[str, float], se: dict[str, float]) -> str | None:
             f"the command does not accelerate the shaft (input gain {p['input_gain']:.3g} ≤ 0): "
             "wrong sign or unit of u, or the speed is not this motor's"
         )
+    if not p["input_gain"] > 3 * se.get("input_gain", 0.0):
+        return (
+            f"the command barely moves the shaft (input gain {p['input_gain']:.3g} ± "
+            f"{se.get('input_gain', 0.0):.2g}): no excitation reached the speed, or u is not this drive's"
+        )
     if not p["J"] > 0:
         return f"the fitted inertia is not positive (J = {p['J']:.3g})"
     if not p["damping"] > -3 * se.get("damping", 0.0):

@@ -153,24 +153,30 @@ def _translate(
     if cause in ("imbalance", "cogging", "resonance") and len(extra) >= 2:
         cs, cc = float(extra[0]), float(extra[1])  # torque/J = cs·sin x + cc·cos x = (A/J)·sin(x + ψ)
         return {"amplitude": abs(J) * math.hypot(cs, cc), "phase": math.atan2(cc, cs)}
-    if cause == "friction_asymmetry" and len(extra) >= 2:
+    if cause == "friction_asymmetry" and len(extra) >= 1:
         w = np.abs(design.prep.rows(design.prep.speed)[design.rows_mask])
         v = float(np.median(w)) if len(w) else 1.0
         tc, tf = names["c"], names["f"]
-        cn, fn = float(extra[0]), float(extra[1])
-        level_pos = -(tc * v + tf)
-        level_neg = -(tc + cn) * v - (tf + fn)
-        # The viscous slope holds the back-EMF too (unknown for another motor): the ratio is the
-        # Coulomb levels', which are friction alone; the speed level is the fallback.
-        tc_pos, tc_neg = -tf, -(tf + fn)
-        ratio = tc_neg / tc_pos if tc_pos > 0 else (level_neg / level_pos if level_pos > 0 else math.nan)
+        cn = float(extra[0])
+        fn = float(extra[1]) if len(extra) > 1 else 0.0
+        kv_pos, kv_neg = -tc * J, -(tc + cn) * J
+        tc_pos, tc_neg = -tf * J, -(tf + fn) * J
+        # Which levels carry the ratio: without back-EMF in the damping (a torque, current or
+        # force command) the viscous slopes are friction alone; a voltage drive's slope holds
+        # kM·kb/R of an unknown motor, so there the Coulomb levels speak.
+        if design.back_emf and len(extra) > 1 and tc_pos > 0:
+            ratio = tc_neg / tc_pos
+        elif kv_pos > 0:
+            ratio = kv_neg / kv_pos
+        else:
+            ratio = math.nan
         return {
             "ratio": ratio,
             "at_speed": v,
-            "kv_pos": -tc * J,
-            "kv_neg": -(tc + cn) * J,
-            "tau_c_pos": -tf * J,
-            "tau_c_neg": -(tf + fn) * J,
+            "kv_pos": kv_pos,
+            "kv_neg": kv_neg,
+            "tau_c_pos": tc_pos,
+            "tau_c_neg": tc_neg,
         }
     if cause == "drift" and len(extra) >= 1:
         d = float(extra[0])

@@ -27,6 +27,7 @@ FORMAT_VERSION = "1"
 # PWM duty −1…1 with `u_scale` volts at full duty.
 U_UNITS = ("V", "A", "N*m", "N", "duty")
 REFERENCE_COLUMNS = ("omega_ref", "phi_ref")
+HUGE = 1e15  # no time, command, speed or angle of a drive comes near this
 REQUIRED = ("t", "u", "omega")
 Failer = Callable[[int, str], DataFileError]  # (row, problem) -> the error to raise
 
@@ -163,6 +164,11 @@ def _parse_rows(lines: list[str], first: int, width: int, fail: Failer) -> np.nd
             raise fail(first + k + 1, f"not a number in {line[:80]!r}") from None
         if not np.all(np.isfinite(data[k])):
             raise fail(first + k + 1, f"NaN or infinite value in {line[:80]!r}; remove or repair the row")
+        if np.any(np.abs(data[k]) > HUGE):
+            raise fail(
+                first + k + 1,
+                f"value beyond ±{HUGE:g} in {line[:80]!r}: not a measurement (overflow, or a unit error)",
+            )
     return data
 
 
