@@ -31,6 +31,7 @@ from tvsd.analysis.prep import Prepared
 MAX_COGGING_ORDER = 24
 MAX_DELAY_S = 0.03
 N_THRESHOLDS = 24
+SUPPORT = 0.01  # a threshold needs 1 % of the samples on each side of it
 STUCK_SHARE = 0.02  # |ω| below 2 % of its range: the shaft is (nearly) stuck
 V0_GRID = (0.5, 1.0, 2.0, 4.0, 8.0)  # Stribeck speeds tried for the baseline, rad/s (or m/s × 0.01)
 
@@ -132,10 +133,16 @@ def _options(prep: Prepared, rotary: bool, offset: bool = False) -> dict[str, li
             for n in range(2, MAX_COGGING_ORDER + 1)
         ]
     if top > 0:
+        # A threshold is told from friction and gain only by data on both sides of it: each
+        # value needs SUPPORT of the moving samples below and above (else it is not a candidate).
+        def supported(x: float) -> bool:
+            return supported_threshold(prep, x)
+
         # Dead zone: applied = u − clip(u, ±u0); the block's coefficient is −a (negative).
         opts["deadzone"] = [
             Option({"u0": x}, band(np.clip(u, -x, x))[:, None], ("dz",), (-1,))
             for x in np.linspace(0.02, 0.5, N_THRESHOLDS) * top
+            if supported(x)
         ]
         # Saturation: applied = u − (|u| − U)₊·sgn u; coefficient −a.
         opts["saturation"] = [
@@ -146,6 +153,7 @@ def _options(prep: Prepared, rotary: bool, offset: bool = False) -> dict[str, li
                 (-1,),
             )
             for x in np.linspace(0.3, 0.97, N_THRESHOLDS) * top
+            if supported(x)
         ]
         dt = 1.0 / d.sample_rate_hz
         n_max = max(2, round(MAX_DELAY_S / dt))
@@ -193,3 +201,11 @@ def shifted(u: np.ndarray, samples: int) -> np.ndarray:
 
 
 INPUT_CAUSES = ("deadzone", "saturation", "delay")
+
+
+def supported_threshold(prep: Prepared, x: float) -> bool:
+    """Whether SUPPORT of the samples lie on each side of the command level x (all samples: below
+    a dead zone the shaft stands still, and that is the evidence)."""
+    mag = np.abs(prep.data.u)
+    below = float(np.mean(mag < x)) if len(mag) else 0.0
+    return SUPPORT <= below <= 1 - SUPPORT

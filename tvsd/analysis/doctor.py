@@ -145,6 +145,13 @@ def diagnose(
     prep = prepare(data, band)
     design = D.build(prep, data.offset_term, rotary)
     design.back_emf = data.b_omega > 0 or data.u_unit == "V"
+    note = _closed_loop_note(data)
+    if note is not None:
+        # In closed loop the command answers the noise; a map of the command (threshold, clip,
+        # delay) is identifiable only through an excited reference, so without one it is not
+        # a candidate (tvsctl identify excites it).
+        for cause in D.INPUT_CAUSES:
+            design.options.pop(cause, None)
     if np.count_nonzero(design.rows_mask) < 10 * design.X.shape[1]:
         raise sense.DataFileError(
             f"{data.path or data.name}: the shaft moves in too few samples to identify the drive "
@@ -208,6 +215,20 @@ def diagnose(
         sim,
         heldout is not None,
         v0,
+    )
+
+
+def _closed_loop_note(data: Dataset) -> str | None:
+    ref = data.refs.get("omega_ref")
+    if ref is None:
+        return None
+    steady = ref[len(ref) // 5 :]
+    level = float(np.mean(np.abs(steady))) if len(steady) else 0.0
+    if level > 0 and float(np.std(steady)) > 0.02 * level:
+        return None
+    return (
+        "closed loop with a constant reference: dead zone, saturation and delay are not testable "
+        "(the command answers the noise); record with reference steps (tvsctl identify)"
     )
 
 

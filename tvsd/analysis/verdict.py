@@ -46,13 +46,17 @@ def _refit_input(
     grid: list[tuple[dict[str, Any], np.ndarray]] = []
     if cause == "deadzone":
         for x in np.linspace(0.0, 0.6, 61)[1:] * top:
-            grid.append(({"u0": float(x)}, np.where(np.abs(u) <= x, 0.0, u - np.sign(u) * x)))
+            if D.supported_threshold(design.prep, x):
+                grid.append(({"u0": float(x)}, np.where(np.abs(u) <= x, 0.0, u - np.sign(u) * x)))
     elif cause == "saturation":
         for x in np.linspace(0.2, 1.0, 41) * top:
-            grid.append(({"u_max": float(x)}, np.clip(u, -x, x)))
+            if D.supported_threshold(design.prep, x):
+                grid.append(({"u_max": float(x)}, np.clip(u, -x, x)))
     else:
         for k in range(0, round(D.MAX_DELAY_S * fs) + 1):
             grid.append(({"delay_s": k / fs}, D.shifted(u, k)))
+    if not grid:  # no supported value on the fine grid: the scanned one stands
+        grid.append(({}, u))
     best: tuple[float, dict[str, Any], np.ndarray] | None = None
     for effect, ua in grid:
         rss = C.gls(design.y, D.with_input(design, ua), out.ar, out.keep).rss

@@ -52,9 +52,9 @@ def _mcu_sil() -> dict[str, Any]:
 
 
 def _doctor() -> dict[str, Any]:
-    from tvsd.analysis.bench import bench_analyze
+    from tvsd.analysis.bench import bench_doctor
 
-    return bench_analyze()
+    return bench_doctor()
 
 
 def _api() -> dict[str, Any]:
