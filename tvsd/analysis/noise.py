@@ -58,9 +58,13 @@ def _whittle(params: np.ndarray, f: np.ndarray, p: np.ndarray, coloured: bool) -
 
 
 def _whittle_peak(params: np.ndarray, f: np.ndarray, p: np.ndarray) -> float:
+    if np.any(np.abs(params) > 300):  # exp would overflow: outside any physical spectrum
+        return math.inf
     a, b, A, f0, q = (math.exp(x) for x in params)
-    s = a + b * f**2 + A / (1 + q**2 * (f / f0 - f0 / f) ** 2)
-    return float(np.sum(np.log(s) + p / s))
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        s = a + b * f**2 + A / (1 + q**2 * (f / f0 - f0 / f) ** 2)
+        value = float(np.sum(np.log(s) + p / s))
+    return value if math.isfinite(value) else math.inf
 
 
 def _peak(fm: np.ndarray, pm: np.ndarray, a0: float, b0: float) -> tuple[float, float, float, float]:

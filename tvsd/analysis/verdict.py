@@ -111,9 +111,14 @@ def name_cause(
             effect = {"frequency_hz": t.frequency_hz}
         elif t.option is not None and t.cause not in D.INPUT_CAUSES:
             X_ext = np.column_stack([design.X, t.option.block])
+        dissolved = False
         if above and chosen is None and t.option is not None and t.cause in D.INPUT_CAUSES:
             effect, u_app = _refit_input(design, out, t.cause, u)
             X_ext = D.with_input(design, u_app)
+            # The structural refit lands on "no effect" (a delay under two samples, which the
+            # baseline's two input columns already hold): the scanned block fitted noise.
+            fs = design.prep.data.sample_rate_hz
+            dissolved = t.cause == "delay" and float(effect.get("delay_s", 0.0)) < 2.0 / fs
         if (above and chosen is None) or t.cause in (
             "imbalance",
             "cogging",
@@ -122,8 +127,8 @@ def name_cause(
         ):
             th = C.gls(design.y, X_ext, out.ar, out.keep).theta
             effect.update(_translate(t.cause, effect, th, design, J))
-        ok = above
-        if above and t.cause == "drift" and t.coef is not None:
+        ok = above and not dissolved
+        if ok and t.cause == "drift" and t.coef is not None:
             ok = _drift_agrees(design, out, str(effect["parameter"]), float(t.coef[0]))
         ranked.append(Scored(t.cause, effect, t.z, t.p, ok and chosen is None))
         if ok and chosen is None:
