@@ -133,17 +133,22 @@ def name_cause(
         ranked.append(Scored(t.cause, effect, t.z, t.p, ok and chosen is None))
         if ok and chosen is None:
             chosen = (t.cause, effect, X_ext, u_app)
-    reason = sense.baseline_problem(params, err)
     cause, effect_out = "none", dict[str, Any]()
     X_fin, u_fin = design.X, u
     if chosen is not None:
         cause, effect_out, X_fin, u_fin = chosen
-        if reason is None:
-            problem = sense.effect_problem(
-                cause, effect_out, u, params["time_constant_s"], data.sample_rate_hz
-            )
-            if problem is not None:
-                reason = f"the best extension, {cause}, {problem}"
+        # Judge the drive's parameters with the named cause in the model: an unmodelled strong
+        # torque inflates the baseline's uncertainty, not the drive's.
+        from tvsd.analysis.doctor import _physical
+
+        k = design.X.shape[1]
+        fin = C.gls(design.y, X_fin, out.ar, out.keep)
+        params, err = _physical(design, fin.theta[:k], fin.se[:k], data.b_u, data.b_omega)
+    reason = sense.baseline_problem(params, err)
+    if chosen is not None and reason is None:
+        problem = sense.effect_problem(cause, effect_out, u, params["time_constant_s"], data.sample_rate_hz)
+        if problem is not None:
+            reason = f"the best extension, {cause}, {problem}"
     if reason is not None:
         cause, effect_out = "model_mismatch", {"reason": reason}
         ranked = [Scored(s.cause, s.effect, s.z, s.p, False) if s.significant else s for s in ranked]
