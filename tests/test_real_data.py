@@ -13,7 +13,15 @@ import pytest
 
 from tvsd.cli.main import main
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+# ../shared/data/real beside the checkout (a worktree sits one level deeper: look upwards).
+REAL = next(
+    (
+        p / "shared" / "data" / "real"
+        for p in Path(__file__).resolve().parents
+        if (p / "shared" / "data" / "real").is_dir()
+    ),
+    Path(__file__).resolve().parents[2] / "shared" / "data" / "real",
+)
 EMPS = REAL / "emps"
 BLDC = REAL / "mpu6050_bldc_throttle_sweep"
 
@@ -56,6 +64,18 @@ def test_emps_baseline_reproduces_the_published_reference_fit(emps):
     assert ls["offset"] == pytest.approx(-3.1648, abs=0.05)
     assert emps["inverse_error_pct"]["baseline_idim_ls"] == pytest.approx(4.0834, abs=0.1)
     assert emps["units"]["axis"] == "linear"
+
+
+def test_emps_force_command_gives_physical_parameters(emps):
+    """Force-commanded (u_unit N): the free baseline's mass, damping and Coulomb level are
+    positive and near the published IDIM-LS values (within 5 %: the free fit regresses the
+    acceleration, IDIM-LS the force, so their noise biases differ); the friction ratio
+    Fv-/Fv+ near the published 240.4/166.7 = 1.44 (within 10 %)."""
+    p = emps["baseline"]["params"]
+    assert p["J"] == pytest.approx(95.11, rel=0.05) and p["damping"] == pytest.approx(203.5, rel=0.05)
+    assert p["tau_c"] > 0
+    assert emps["effect"]["ratio"] == pytest.approx(1.44, rel=0.1)
+    assert not emps["lyapunov"]["chaotic"]
 
 
 def test_emps_doctor_finds_the_published_asymmetric_friction(emps):

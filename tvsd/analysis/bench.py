@@ -10,6 +10,13 @@ import time
 from pathlib import Path
 
 
+def bench_doctor() -> dict[str, object]:
+    """The 60 s timing, then the randomised matrix (tvsd.analysis.matrix: ≥ 50 nulls)."""
+    from tvsd.analysis.matrix import run
+
+    return {**bench_analyze(), **run()}
+
+
 def bench_analyze(seconds: float = 60.0) -> dict[str, float]:
     """Wall time and peak memory of `tvsctl analyze` on a SIL staircase with a hidden dead zone.
 

@@ -52,6 +52,8 @@ class Dataset:
     lag_s: float = 0.0  # electrical time constant L/R: the current follows u this much later
     meta: dict[str, str] = field(default_factory=dict)
     path: Path | None = None
+    u_unit: str = "V"
+    refs: dict[str, np.ndarray] = field(default_factory=dict)  # closed-loop reference columns
 
     @property
     def duration_s(self) -> float:
@@ -72,6 +74,8 @@ class Dataset:
             self.lag_s,
             self.meta,
             self.path,
+            self.u_unit,
+            {k: v[start:stop] for k, v in self.refs.items()},
         )
 
 
@@ -82,20 +86,36 @@ def load(path: Path, cfg: Config) -> Dataset:
         return load_emps(path)
     rec = read_recording(path)
     p = cfg.plant
+    unit = rec.meta.get("u_unit", "V")
+    u = rec.u
+    # The input map follows the declared unit (DESIGN.md): a voltage drive has back-EMF and the
+    # L/R lag; a current drive applies kM·i; a torque (force) command is the effort itself.
+    if unit == "duty":
+        u = u * float(rec.meta["u_scale"])
+    if unit in ("V", "duty"):
+        b_u, b_omega, lag = p.kM * p.ku / p.R, p.kM * p.kb / p.R, p.L / p.R
+    elif unit == "A":
+        b_u, b_omega, lag = p.kM, 0.0, 0.0
+    else:  # N*m or N
+        b_u, b_omega, lag = 1.0, 0.0, 0.0
+    linear = unit == "N"
+    refs = {k: v for k, v in rec.extra.items() if k in ("omega_ref", "phi_ref")}
     return Dataset(
         name=path.name,
         t=rec.t,
-        u=rec.u,
+        u=u,
         position=rec.phi,
         speed=rec.omega,
         sample_rate_hz=rec.sample_rate_hz,
-        b_u=p.kM * p.ku / p.R,
-        b_omega=p.kM * p.kb / p.R,
-        units=ROTARY,
-        offset_term=False,
-        lag_s=p.L / p.R,
+        b_u=b_u,
+        b_omega=b_omega,
+        units=LINEAR if linear else ROTARY,
+        offset_term=unit in ("A", "N*m", "N"),
+        lag_s=lag,
         meta=dict(rec.meta),
         path=path,
+        u_unit="V" if unit == "duty" else unit,
+        refs=refs,
     )
 
 
@@ -141,4 +161,5 @@ def load_emps(path: Path) -> Dataset:
         offset_term=True,
         meta={"source": "EMPS benchmark (Janot, Gautier, Brunot 2019)", "axis": "linear"},
         path=path,
+        u_unit="N",
     )

@@ -62,7 +62,7 @@ def _fit_figure(plt: Any, dg: Diagnosis) -> Any:
     u = dg.data.units
     ax[0].plot(t[m], sim["measured"][m], lw=0.8, label="measured", color="k")
     ax[0].plot(t[m], sim["baseline"][m], lw=0.8, label=f"paper's model (RMSE {dg.heldout_rmse_base:.3g})")
-    if dg.best is not None:
+    if dg.cause not in ("none", "model_mismatch", "colored_noise"):
         ax[0].plot(t[m], sim["extended"][m], lw=0.8, label=f"+ {dg.cause} (RMSE {dg.heldout_rmse_ext:.3g})")
     ax[0].set(
         ylabel=f"speed ({u.speed})",
@@ -71,7 +71,7 @@ def _fit_figure(plt: Any, dg: Diagnosis) -> Any:
     )
     ax[0].legend(loc="upper right", fontsize=8)
     ax[1].plot(t[m], (sim["baseline"] - sim["measured"])[m], lw=0.6, label="paper's model")
-    if dg.best is not None:
+    if dg.cause not in ("none", "model_mismatch", "colored_noise"):
         ax[1].plot(t[m], (sim["extended"] - sim["measured"])[m], lw=0.6, label=f"+ {dg.cause}")
     ax[1].set(xlabel="t (s)", ylabel=f"error ({u.speed})")
     ax[1].legend(loc="upper right", fontsize=8)
@@ -81,10 +81,9 @@ def _fit_figure(plt: Any, dg: Diagnosis) -> Any:
 def _spectrum_figure(plt: Any, dg: Diagnosis) -> Any:
     fig, ax = plt.subplots(figsize=(9, 4))
     ax.semilogy(dg.noise.freq[1:], dg.noise.psd[1:], lw=0.8)
-    best = dg.best
-    if best is not None and best.cause == "resonance":
-        ax.axvline(float(best.effect["frequency_hz"]), color="r", ls=":", label="fitted resonance")
-    w = np.abs(dg.cols.prep.speed)
+    if dg.cause == "resonance":
+        ax.axvline(float(dg.effect["frequency_hz"]), color="r", ls=":", label="fitted resonance")
+    w = np.abs(dg.design.prep.speed)
     f_rot = (
         float(np.median(w[w > 0.05 * max(float(np.max(w)), 1e-12)])) / (2 * math.pi) if np.any(w > 0) else 0
     )
@@ -103,9 +102,10 @@ def _spectrum_figure(plt: Any, dg: Diagnosis) -> Any:
 
 
 def _residual_figure(plt: Any, dg: Diagnosis) -> Any:
-    cols, p = dg.cols, dg.cols.prep
-    r = dg.baseline.fit.residual
-    m = cols.fit_rows
+    p, design = dg.design.prep, dg.design
+    m = design.rows_mask
+    theta = np.linalg.lstsq(design.X[m], design.y[m], rcond=None)[0]
+    r = (design.y - design.X @ theta)[m] * dg.params["J"]
     phi = p.rows(dg.data.position)[m]
     w = p.rows(p.speed)[m]
     u = p.rows(dg.data.u)[m]
@@ -136,14 +136,15 @@ def _residual_figure(plt: Any, dg: Diagnosis) -> Any:
 
 def _candidates_figure(plt: Any, dg: Diagnosis) -> Any:
     fig, ax = plt.subplots(figsize=(9, 3.8))
-    names = [s.cause for s in dg.ranked]
-    z = [max(s.z, 0.0) if s.cause != "colored_noise" else 0.0 for s in dg.ranked]
-    colours = ["tab:red" if s.significant else "0.6" for s in dg.ranked]
+    ranked = [s for s in dg.ranked if s.cause != "colored_noise"]
+    names = [s.cause for s in ranked]
+    z = [max(s.z, 0.0) for s in ranked]
+    colours = ["tab:red" if s.significant else "0.6" for s in ranked]
     ax.bar(names, z, color=colours)
-    from tvsd.analysis.doctor import Z_CRIT
-
-    ax.axhline(Z_CRIT, color="k", ls="--", lw=0.8, label=f"significance z = {Z_CRIT:g}")
-    ax.set(ylabel="held-out z-score", title="candidate extensions (red: significant)")
+    thr = dg.outcome.threshold
+    ax.axhline(thr, color="k", ls="--", lw=0.8, label=f"threshold z = {thr:.2f} (false-alarm rate 1 %)")
+    ax.set(ylabel="likelihood ratio, standardised by its own null", title="candidate extensions (red: named)")
+    ax.set_yscale("symlog")
     ax.tick_params(axis="x", rotation=30)
     ax.legend(fontsize=8)
     return fig
@@ -161,8 +162,8 @@ def _markdown(dg: Diagnosis, s: dict[str, Any]) -> str:
         ]
     lines += [
         f"Recording: {dg.data.duration_s:.1f} s at {dg.data.sample_rate_hz:g} Hz. Fitted on "
-        f"{'the whole file' if dg.heldout_cols is not None else 'the first two thirds'}, judged on "
-        f"{'the held-out file' if dg.heldout_cols is not None else 'the last third'}.",
+        f"{'the whole file' if dg.heldout_file else 'the first two thirds'}, judged on "
+        f"{'the held-out file' if dg.heldout_file else 'the last third'}.",
         "",
         "## The paper's model, fitted",
         "",
@@ -171,7 +172,8 @@ def _markdown(dg: Diagnosis, s: dict[str, Any]) -> str:
     ]
     names = LINEAR_NAMES if u.axis == "linear" else {}
     for name, value in s["baseline"]["params"].items():
-        lines.append(f"| {names.get(name, name)} | {value:.5g} | {s['baseline']['stderr'][name]:.2g} |")
+        se = s["baseline"]["stderr"].get(name, math.nan)
+        lines.append(f"| {names.get(name, name)} | {value:.5g} | {se:.2g} |")
     if "EMPS" in dg.data.meta.get("source", ""):
         lines += [
             "",
@@ -182,8 +184,8 @@ def _markdown(dg: Diagnosis, s: dict[str, Any]) -> str:
     lines += [
         "",
         f"Vibration level σv ≈ {dg.noise.sigma_v:.3g} (eq. 12, from the flat part of the residual "
-        "spectrum). Fit: static map from steady segments, then IDIM-LS, then IDIM-IV "
-        "(instruments from the model simulated on the recorded command).",
+        "spectrum). Fit: every coefficient free (input gain, damping, Coulomb and Stribeck "
+        "friction), generalised least squares under an AR model of the residual noise.",
         "",
         "## What the model gets wrong",
         "",
@@ -195,11 +197,12 @@ def _markdown(dg: Diagnosis, s: dict[str, Any]) -> str:
         "",
         "## Candidate causes",
         "",
-        "Each cause is fitted as an extension and judged on data not used for fitting "
-        "(z-score of the held-out improvement; significant above 5, with at least 0.5 % of "
-        "the residual explained and a held-out simulation no worse than 10 %).",
+        "Each cause is fitted as an extension of the baseline; its likelihood ratio is "
+        "standardised by its own null distribution (a parametric bootstrap from the fitted "
+        "baseline and its noise), and the largest is named only above the point the bootstrap "
+        f"maxima exceed 1 % of the time (here z > {dg.outcome.threshold:.2f}).",
         "",
-        "| cause | z | held-out residual removed | significant | parameters |",
+        "| cause | z | p alone | named | parameters |",
         "|---|---|---|---|---|",
     ]
     for c in s["candidates"]:
@@ -208,7 +211,7 @@ def _markdown(dg: Diagnosis, s: dict[str, Any]) -> str:
         )
         note = f" (indistinguishable here from {c['ambiguous_with']})" if "ambiguous_with" in c else ""
         lines.append(
-            f"| {c['cause']}{note} | {c['score']:.1f} | {c['gain_pct']:.2f} % | "
+            f"| {c['cause']}{note} | {c['score']:.1f} | {c['p_value']:.3g} | "
             f"{'yes' if c['significant'] else 'no'} | {params} |"
         )
     lines += [
@@ -217,16 +220,12 @@ def _markdown(dg: Diagnosis, s: dict[str, Any]) -> str:
         "",
         "## Gain on held-out data",
         "",
-        "| model | held-out speed RMSE | inverse-model error (fit part) |",
-        "|---|---|---|",
-        f"| paper's model | {dg.heldout_rmse_base:.4g} {u.speed} | "
-        f"{s['inverse_error_pct']['baseline']:.2f} % |",
+        "| model | held-out speed RMSE |",
+        "|---|---|",
+        f"| paper's model | {dg.heldout_rmse_base:.4g} {u.speed} |",
     ]
-    if dg.best is not None:
-        lines.append(
-            f"| + {dg.cause} | {dg.heldout_rmse_ext:.4g} {u.speed} | "
-            f"{s['inverse_error_pct'].get('extended', math.nan):.2f} % |"
-        )
+    if dg.cause not in ("none", "model_mismatch", "colored_noise"):
+        lines.append(f"| + {dg.cause} | {dg.heldout_rmse_ext:.4g} {u.speed} |")
     lines += [
         "",
         f"Gain: **{s['gain_pct']:.1f} %** of the held-out speed error. (Torques at the shaft "

@@ -7,9 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from tvsd.analysis.doctor import Diagnosis, Scored
-from tvsd.analysis.lyapunov import exponents
-from tvsd.analysis.simulate import no_effect
+from tvsd.analysis.doctor import ALPHA, Diagnosis, effect_array
+from tvsd.analysis.lyapunov import Lyapunov, estimate
+from tvsd.model import effects as E
 
 # What each cause means on the machine, for the one-sentence verdict.
 SENTENCES = {
@@ -30,148 +30,134 @@ SENTENCES = {
     "inspect the bearings or the transmission for wear or preload on one side.",
     "colored_noise": "The vibration disturbance is low-pass correlated (correlation time {tau_ms:.0f} ms), "
     "not white as the paper assumes: look for a slow external source (floor, robot base).",
+    "model_mismatch": "The paper's model does not fit this recording, so no cause is named: {reason}. "
+    "Check the input unit (# u_unit), the columns, and that the data come from one rigid drive.",
     "drift": "The motor's {parameter} changed by {relative_change_pct:+.1f} % during the recording; "
     "check for heating (R, kM) or lubrication changes (kv, friction).",
 }
 
 
 def sentence(dg: Diagnosis) -> str:
-    best = dg.best
-    if best is None:
+    if dg.cause == "none":
         return SENTENCES["none"]
-    values: dict[str, Any] = {**best.effect, "effort": dg.data.units.effort}
-    if best.cause == "delay":
-        values["delay_ms"] = 1e3 * float(best.effect["delay_s"])
-    if best.cause == "colored_noise":
-        values["tau_ms"] = 1e3 * float(best.effect["tau_s"])
-    if best.cause == "drift":
-        values["relative_change_pct"] = 100 * float(best.effect["relative_change"])
+    values: dict[str, Any] = {**dg.effect, "effort": dg.data.units.effort}
+    if dg.cause == "delay":
+        values["delay_ms"] = 1e3 * float(dg.effect["delay_s"])
+    if dg.cause == "colored_noise":
+        values["tau_ms"] = 1e3 * float(dg.effect["tau_s"])
+    if dg.cause == "drift":
+        values["relative_change_pct"] = 100 * float(dg.effect["relative_change"])
     if "order" in values:
         values["order"] = int(values["order"])
-    text = SENTENCES[best.cause].format(**values)
-    if best.ambiguous_with:
-        text += (
-            f" (At the steady speed held out, a fixed {best.ambiguous_with} line at the same "
-            "frequency fits as well; a recording that changes speed would tell them apart.)"
-        )
-    return text
+    return SENTENCES[dg.cause].format(**values)
 
 
-def _effect_json(s: Scored) -> dict[str, Any]:
-    keep = {
-        "imbalance": ("order", "amplitude", "phase"),
-        "cogging": ("order", "amplitude", "phase"),
-        "resonance": ("frequency_hz", "amplitude", "phase"),
-        "saturation": ("u_max",),
-        "deadzone": ("u0",),
-        "delay": ("delay_s",),
-        "friction_asymmetry": ("ratio",),
-        "colored_noise": ("tau_s",),
-        "drift": ("parameter", "relative_change"),
-    }[s.cause]
-    out = {k: s.effect[k] for k in keep if k in s.effect}
+KEEP = {
+    "imbalance": ("order", "amplitude", "phase"),
+    "cogging": ("order", "amplitude", "phase"),
+    "resonance": ("frequency_hz", "amplitude", "phase"),
+    "saturation": ("u_max",),
+    "deadzone": ("u0",),
+    "delay": ("delay_s",),
+    "friction_asymmetry": ("ratio",),
+    "colored_noise": ("tau_s",),
+    "drift": ("parameter", "relative_change"),
+    "model_mismatch": ("reason",),
+    "none": (),
+}
+
+
+def _effect_json(cause: str, effect: dict[str, Any]) -> dict[str, Any]:
+    out = {k: effect[k] for k in KEEP[cause] if k in effect}
     if "order" in out:
         out["order"] = int(out["order"])
-    return out
+    return {k: (float(v) if isinstance(v, (np.floating, np.integer)) else v) for k, v in out.items()}
 
 
 def as_json(dg: Diagnosis, report: str | None = None) -> dict[str, Any]:
-    best = dg.best
-    base = dg.baseline
-    ext_params = dict(base.fit.params())
-    if best is not None and best.fit is not None:
-        ext_params = best.fit.params()
-        ext_params.update({k: v for k, v in _effect_json(best).items()})
-    lam1, lam_speed = lyapunov(dg)
     units = dg.data.units
+    base_params = {k: dg.params[k] for k in ("J", "kv", "damping", "tau_c", "d_stribeck", "v0", "offset")}
+    ext = dict(dg.ext_params) if dg.ext_params else dict(dg.params)
+    ext_params = {k: ext[k] for k in base_params if k in ext}
+    ext_params.update(_effect_json(dg.cause, dg.effect) if dg.cause != "model_mismatch" else {})
+    idim = _idim(dg)
     out: dict[str, Any] = {
         "cause": dg.cause,
-        "effect": _effect_json(best) if best else {},
+        "effect": _effect_json(dg.cause, dg.effect),
         "candidates": [
             {
                 "cause": s.cause,
-                "score": s.z,
-                "gain_pct": s.heldout_gain_pct,
-                "significant": s.significant,
-                "effect": _effect_json(s),
-                **({"ambiguous_with": s.ambiguous_with} if s.ambiguous_with else {}),
+                "score": float(s.z),
+                "p_value": float(s.p),
+                "gain_pct": float(s.heldout_gain_pct) if math.isfinite(s.heldout_gain_pct) else None,
+                "significant": bool(s.significant),
+                "effect": _effect_json(s.cause, s.effect),
             }
             for s in dg.ranked
         ],
+        "decision": {
+            "rule": "largest likelihood ratio, each standardised by its own bootstrap null; "
+            "named above the (1 - alpha) point of the bootstrap maxima",
+            "alpha": ALPHA,
+            "threshold": dg.outcome.threshold,
+            "rows": dg.outcome.n,
+            "ar_order": len(dg.outcome.ar) - 1,
+        },
         "baseline": {
-            "params": base.fit.params(),
-            "stderr": {n: base.fit.stderr(n) for n in base.fit.names},
-            "static_map": base.static,
-            "idim_ls": base.ls.params(),
+            "params": base_params,
+            "stderr": {k: float(v) for k, v in dg.stderr.items()},
+            "input_gain": dg.params["input_gain"],
+            "time_constant_s": dg.params["time_constant_s"],
+            "idim_ls": idim[1].params(),
             "heldout_rmse": dg.heldout_rmse_base,
         },
         "extended": {"params": ext_params, "heldout_rmse": dg.heldout_rmse_ext},
         "gain_pct": dg.gain_pct,
         "summary": sentence(dg),
-        "units": {"speed": units.speed, "effort": units.effort, "axis": units.axis},
-        "heldout": "file" if dg.heldout_cols is not None else "last third of the recording",
+        "units": {"speed": units.speed, "effort": units.effort, "axis": units.axis, "u": dg.data.u_unit},
+        "heldout": "file" if dg.heldout_file else "last third of the recording",
         "noise": {
             "sigma_v": dg.noise.sigma_v,
             "ljung_box_p": dg.noise.ljung_box_p,
             "colour_p": dg.noise.colour_p,
             "tau_s": dg.noise.tau_s,
         },
-        "lyapunov": {
-            "lambda1_per_s": lam1,
-            "lambda_speed_per_s": lam_speed,
-            "chaotic": bool(lam1 > 0.05 * abs(lam_speed)),
-        },
-        "inverse_error_pct": inverse_error_pct(dg),
-        "spectrum": spectral_view(dg),
+        # chaotic only when λ1's confidence interval lies above zero (tvsd/analysis/lyapunov.py)
+        "lyapunov": lyapunov(dg).as_json(),
+        "inverse_error_pct": inverse_error_pct(idim),
     }
+    if dg.reason:
+        out["reason"] = dg.reason
     if report:
         out["report"] = report
     return out
 
 
-def lyapunov(dg: Diagnosis) -> tuple[float, float]:
-    cols = dg.cols
-    d = cols.prep.data
-    effect = dg.best.candidate.effect_array() if dg.best and dg.best.candidate else no_effect()
-    speed = d.speed if d.speed is not None else cols.prep.speed
-    return exponents(dg.baseline.model, d.t, speed, d.position, effect)
+def lyapunov(dg: Diagnosis) -> Lyapunov:
+    d = dg.data
+    eff = effect_array(dg.cause, dg.effect)
+    speed = d.speed if d.speed is not None else dg.design.prep.speed
+    return estimate(dg.model, d.t, speed, d.position, E.neutral() if eff is None else eff)
 
 
-def spectral_view(dg: Diagnosis) -> dict[str, float]:
-    """Dominant line of the measured acceleration and of the simulated models' (paper Table 2).
+def _idim(dg: Diagnosis) -> tuple[Any, Any, Any]:
+    """The published inverse model (effort = J·accel + friction), plain least squares, as EMPS'
+    reference reports it; with its direction-split friction."""
+    from tvsd.analysis.candidates import fit_friction_asymmetry
+    from tvsd.analysis.inverse import Columns
 
-    The acceleration is the derivative of the band-limited speed on the held-out part, as an SA
-    IMU would see it; the models are simulated from the recorded command.
-    """
-    from tvsd.sim.metrics import dominant_frequency
-
-    sim, d = dg.sim, dg.data
-    m = sim["heldout"]
-    rate = d.sample_rate_hz
-    out = {}
-    for key in ("measured", "baseline", "extended"):
-        accel = np.gradient(dg.cols.prep.lowpass(sim[key]), 1.0 / rate)[m]
-        hz, amp = dominant_frequency(accel, rate, min_hz=1.0, resolution_hz=0.25)
-        out[f"{key}_dominant_hz"] = hz
-        out[f"{key}_dominant_amplitude"] = amp
-    w = np.abs(sim["measured"][m])
-    out["rotation_hz"] = float(np.median(w)) / (2 * math.pi) if d.units.axis == "rotary" else math.nan
-    return out
+    v0 = dg.v0_config if math.isfinite(dg.v0_config) else 1.0
+    cols = Columns(dg.design.prep, v0)
+    ls = cols.baseline()
+    return cols, ls, fit_friction_asymmetry(cols, ls)
 
 
-def inverse_error_pct(dg: Diagnosis) -> dict[str, float]:
-    """Relative error of the inverse (effort) model on the fitting rows, % — EMPS' 'force error'."""
-    cols = dg.cols
-    m = cols.fit_rows
-    y = cols.y[m]
+def inverse_error_pct(idim: tuple[Any, Any, Any]) -> dict[str, float]:
+    """Relative error of the inverse (effort) model, % — EMPS' 'force error'."""
+    cols, ls, asym = idim
+    y = cols.y
 
     def rel(resid: np.ndarray) -> float:
         return 100 * math.sqrt(float(np.mean(resid**2)) / float(np.mean(y**2)))
 
-    out = {"baseline": rel(dg.baseline.fit.residual), "baseline_idim_ls": rel(dg.baseline.ls.residual)}
-    if dg.best is not None and dg.best.fit is not None:
-        out["extended"] = rel(dg.best.fit.residual)
-    asym = next((s for s in dg.ranked if s.cause == "friction_asymmetry" and s.candidate), None)
-    if asym is not None and asym.candidate is not None:
-        out["friction_asymmetry_idim_ls"] = rel(asym.candidate.fit.residual)  # EMPS' asymmetric model
-    return out
+    return {"baseline_idim_ls": rel(ls.residual), "friction_asymmetry_idim_ls": rel(asym.fit.residual)}

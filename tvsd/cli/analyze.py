@@ -32,6 +32,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         action="store_true",
         help="no progress lines on stderr (there are none when stderr is not a terminal)",
     )
+    p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap that calibrates the decision")
     p.set_defaults(func=_run)
 
 
@@ -56,7 +57,7 @@ def _run(args: argparse.Namespace) -> int:
     data = load(args.file, cfg)
     heldout = load(args.heldout, cfg) if args.heldout else None
     band = EMPS_BAND if data.units.axis == "linear" else Band()
-    dg = diagnose(data, cfg.plant.v0, heldout=heldout, band=band, progress=progress)
+    dg = diagnose(data, cfg.plant.v0, heldout=heldout, band=band, progress=progress, seed=args.seed)
     summary = as_json(dg)
     if args.report:
         progress("writing the report")
@@ -69,11 +70,13 @@ def _run(args: argparse.Namespace) -> int:
     print()
     print_table(
         [
-            (c["cause"], f"{c['score']:.1f}", f"{c['gain_pct']:.2f} %", "yes" if c["significant"] else "no")
+            (c["cause"], f"{c['score']:.1f}", f"{c['p_value']:.3g}", "yes" if c["significant"] else "no")
             for c in summary["candidates"]
         ],
-        ["candidate", "z", "held-out gain", "significant"],
+        ["candidate", "z (own null)", "p (alone)", "named"],
     )
+    dec = summary["decision"]
+    print(f"named above z = {dec['threshold']:.2f} (false-alarm rate {dec['alpha']:g})")
     print()
     print(
         f"held-out speed RMSE: paper's model {dg.heldout_rmse_base:.4g}, extended {dg.heldout_rmse_ext:.4g} "

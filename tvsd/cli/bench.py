@@ -62,9 +62,9 @@ def _mcu_stm32() -> dict[str, Any]:
 
 
 def _doctor() -> dict[str, Any]:
-    from tvsd.analysis.bench import bench_analyze
+    from tvsd.analysis.bench import bench_doctor
 
-    return bench_analyze()
+    return bench_doctor()
 
 
 def _api() -> dict[str, Any]:

@@ -68,9 +68,16 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     rec.add_argument("--out", type=Path, required=True, metavar="FILE.csv")
     rec.add_argument(
         "--profile",
-        choices=("steps", "spin"),
+        choices=("steps", "multisine", "spin"),
         default="steps",
-        help="steps: open-loop voltage staircase; spin: scanning mode to --rps",
+        help="steps: open-loop voltage staircase; multisine: open-loop PRBS on a multisine;\n"
+        "spin: scanning mode to --rps (closed loop; writes omega_ref, phi_ref)",
+    )
+    rec.add_argument(
+        "--u-unit",
+        choices=("V", "A", "N*m", "duty"),
+        default="V",
+        help="what the u column is: drive voltage, motor current, torque kM*i, or duty (u_scale = limit)",
     )
     rec.add_argument("--rps", type=float, default=20.0, help="spin profile speed (default 20 rev/s)")
     rec.add_argument("--seconds", type=float, default=60.0, help="length (default 60 s)")
@@ -237,7 +244,7 @@ def _record(args: argparse.Namespace) -> int:
         cfg = dataclasses.replace(cfg, sil=dataclasses.replace(sil, vibration=vib))
     if args.plot is not None and args.plot.suffix.lower() != ".png":  # before the run, not after
         raise UsageError(f"--plot {args.plot}: the plot is written as PNG; give a file name ending in .png")
-    res = record(cfg, args.out, args.profile, seconds, effects, args.seed, args.rps, args.params)
+    res = record(cfg, args.out, args.profile, seconds, effects, args.seed, args.rps, args.params, args.u_unit)
     if args.plot:
         from tvsd.sim.plots import record_plot
 

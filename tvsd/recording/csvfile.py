@@ -23,6 +23,11 @@ import numpy as np
 from tvsd.errors import DataFileError
 
 FORMAT_VERSION = "1"
+# What u is (DESIGN.md): a voltage drive (default), a current drive, a torque/force command, or a
+# PWM duty −1…1 with `u_scale` volts at full duty.
+U_UNITS = ("V", "A", "N*m", "N", "duty")
+REFERENCE_COLUMNS = ("omega_ref", "phi_ref")
+HUGE = 1e15  # no time, command, speed or angle of a drive comes near this
 REQUIRED = ("t", "u", "omega")
 Failer = Callable[[int, str], DataFileError]  # (row, problem) -> the error to raise
 
@@ -104,6 +109,7 @@ def read(path: Path) -> Recording:
         rate = math.nan
     if not (math.isfinite(rate) and rate > 0):
         raise fail(2, f"sample_rate_hz must be a positive number, got {meta['sample_rate_hz']!r}")
+    _check_unit(meta, fail)
     if row >= len(lines):
         raise fail(row + 1, "missing the column header line (t,u,omega[,phi,...])")
     header = [h.strip() for h in lines[row].split(",")]
@@ -128,6 +134,19 @@ def read(path: Path) -> Recording:
     return Recording(cols["t"], cols["u"], cols["omega"], phi, rate, meta, extra, path, phi_measured)
 
 
+def _check_unit(meta: Mapping[str, str], fail: Failer) -> None:
+    unit = meta.get("u_unit", "V")
+    if unit not in U_UNITS:
+        raise fail(2, f"u_unit {unit!r} is not one of {', '.join(U_UNITS)} (what the command u is)")
+    if unit == "duty":
+        try:
+            scale = float(meta.get("u_scale", "nan"))
+        except ValueError:
+            scale = math.nan
+        if not (math.isfinite(scale) and scale > 0):
+            raise fail(2, "u_unit duty needs '# u_scale: <volts at full duty>' (a positive number)")
+
+
 def _parse_rows(lines: list[str], first: int, width: int, fail: Failer) -> np.ndarray:
     body = [ln for ln in lines[first:]]
     while body and not body[-1].strip():
@@ -145,6 +164,11 @@ def _parse_rows(lines: list[str], first: int, width: int, fail: Failer) -> np.nd
             raise fail(first + k + 1, f"not a number in {line[:80]!r}") from None
         if not np.all(np.isfinite(data[k])):
             raise fail(first + k + 1, f"NaN or infinite value in {line[:80]!r}; remove or repair the row")
+        if np.any(np.abs(data[k]) > HUGE):
+            raise fail(
+                first + k + 1,
+                f"value beyond ±{HUGE:g} in {line[:80]!r}: not a measurement (overflow, or a unit error)",
+            )
     return data
 
 

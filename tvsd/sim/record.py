@@ -4,7 +4,13 @@ Profiles:
 - ``steps``: open-loop voltage staircase, levels of both signs between 5 % and 100 % of the drive
   limit, held 1.5–4 s (the default plant's mechanical time constant is 2.4 s), so the recording
   holds a mix of speeds and directions, near-zero levels and full-scale ones;
-- ``spin``: the scanning mode from rest to `rps` (closed loop, the robust law).
+- ``multisine``: open-loop, a PRBS (random-sign levels held 20–300 ms) on a multisine, both
+  within the drive limit: broadband excitation, many reversals;
+- ``spin``: the scanning mode from rest to `rps` (closed loop, the robust law); the controller's
+  reference goes into the file as ``omega_ref``, ``phi_ref`` (as the daemon's export does).
+What ``u`` is follows ``u_unit`` (DESIGN.md): ``V`` the drive voltage; ``A`` the motor current
+(as a current-controlled drive reports it); ``N*m`` the torque kM·i; ``duty`` the voltage over the
+drive limit, with ``u_scale`` = that limit.
 Measurement: the encoder angle quantised to its counts, the speed as the mean over each sample
 period plus Gaussian noise (a tachometer / encoder-period estimate), the command as the mean
 voltage over the period. The effects switched on are not written to the file: tests hide them.
@@ -25,7 +31,26 @@ from tvsd.errors import UsageError
 from tvsd.recording.csvfile import write
 from tvsd.sim import runs
 
-PROFILES = ("steps", "spin")
+PROFILES = ("steps", "multisine", "spin")
+U_UNITS = ("V", "A", "N*m", "duty")
+
+
+def multisine(rng: np.random.Generator, seconds: float, u_max: float, dt: float) -> np.ndarray:
+    """PRBS on a multisine (0.2–20 Hz, random phases), scaled into ±u_max."""
+    n = round(seconds / dt)
+    t = np.arange(n) * dt
+    u = np.zeros(n)
+    for f in np.geomspace(0.2, 20.0, 8):
+        u += np.sin(2 * math.pi * f * t + rng.uniform(0, 2 * math.pi))
+    u *= 0.35 * u_max / max(float(np.max(np.abs(u))), 1e-12)
+    k = 0
+    while k < n:
+        hold = round(rng.uniform(0.02, 0.3) / dt)
+        u[k : k + hold] += 0.6 * u_max * (1.0 if rng.random() < 0.5 else -1.0) * rng.uniform(0.3, 1.0)
+        k += hold
+    u = np.clip(u, -u_max, u_max)
+    u[: round(0.2 / dt)] = 0.0
+    return u
 
 
 def staircase(rng: np.random.Generator, seconds: float, u_max: float, dt: float) -> np.ndarray:
@@ -74,9 +99,12 @@ def record(
     seed: int,
     rps: float = 20.0,
     params_name: str = "default",
+    u_unit: str = "V",
 ) -> RecordResult:
     if profile not in PROFILES:
-        raise UsageError(f"unknown profile '{profile}'; choose {' or '.join(PROFILES)}")
+        raise UsageError(f"unknown profile '{profile}'; choose {', '.join(PROFILES)}")
+    if u_unit not in U_UNITS:
+        raise UsageError(f"unknown u_unit '{u_unit}'; choose {', '.join(U_UNITS)}")
     m = cfg.sil_or_default.measurement
     setup = Setup.from_config(cfg, effects=effects, seed=seed)
     decim = round(1.0 / (setup.dt * m.sample_rate_hz))
@@ -86,13 +114,24 @@ def record(
             f"{1 / setup.dt:g} Hz; choose e.g. 1000"
         )
     rng = np.random.default_rng(seed)
-    if profile == "steps":
-        trace = runs.open_loop(setup, staircase(rng, seconds, setup.u_max, setup.dt), decim)
-        meta: dict[str, object] = {"profile": "steps"}
+    extra: dict[str, np.ndarray] = {}
+    if profile in ("steps", "multisine"):
+        shape = staircase if profile == "steps" else multisine
+        trace = runs.open_loop(setup, shape(rng, seconds, setup.u_max, setup.dt), decim)
+        meta: dict[str, object] = {"profile": profile}
     else:
         trace = runs.spin(setup, rps, seconds, decim)
         meta = {"profile": "spin", "rps_setpoint": rps}
+        extra = {"omega_ref": np.gradient(trace.phi_ref, trace.t), "phi_ref": trace.phi_ref}
     cols = measure(trace, m, rng)
+    meta["u_unit"] = u_unit
+    if u_unit == "A":
+        cols["u"] = trace.current
+    elif u_unit == "N*m":
+        cols["u"] = cfg.plant.kM * trace.current
+    elif u_unit == "duty":
+        cols["u"] = cols["u"] / setup.u_max
+        meta["u_scale"] = setup.u_max
     meta.update(
         {
             "source": "tvsctl sim record",
@@ -102,5 +141,5 @@ def record(
             "encoder_counts_per_rev": m.encoder_counts_per_rev,
         }
     )
-    write(out, cols["t"], cols["u"], cols["omega"], cols["phi"], m.sample_rate_hz, meta)
+    write(out, cols["t"], cols["u"], cols["omega"], cols["phi"], m.sample_rate_hz, meta, extra)
     return RecordResult(out, profile, seconds, len(trace.t), m.sample_rate_hz)

@@ -1,0 +1,237 @@
+"""The decision rule: one likelihood ratio per cause, its false-alarm rate set by a parametric bootstrap.
+
+1. Noise model. The baseline's residual rows are not white (the differentiated speed noise rises
+   with frequency; a coloured vibration falls). An AR(p) model of that residual whitens every
+   column alike (generalised least squares), so the Gaussian likelihood of the rows is honest.
+2. Statistic. Each cause c adds a block W (for each value of its scanned parameter). With Q₀ an
+   orthonormal basis of the whitened baseline and e₀ its residual, the block explains
+   ΔRSS = |Q_cᵀe₀|², Q_c an orthonormal basis of W with the baseline projected out; the
+   likelihood ratio is T = n·ln(RSS₀/(RSS₀ − ΔRSS)), maximised over the scanned values. A line
+   fixed in Hz (resonance) is scanned over every frequency of the band through the periodogram.
+3. Calibration. Under the fitted baseline with its noise, the whitened errors are i.i.d. normal,
+   so the same statistics computed for B draws of such errors (one matrix product for all
+   blocks) give each cause's null distribution: with its own scan, its own size. Each cause's
+   statistic is standardised by its null (median and spread), the largest standardised
+   statistic is the test, and its threshold is the (1 − α) point of a Gumbel law fitted to the
+   bootstrap maxima — the false-alarm rate is α, set, not tuned. (The bootstrap conditions on
+   the regressors, as least squares does; what it does not cover is a baseline that is wrong in
+   a way no cause describes — that is what the physical checks of tvsd.analysis.sense are for.)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter as sig_lfilter
+
+from tvsd.analysis.design import Design, Option, resonance_columns
+
+AR_ORDER = 6
+BOOTSTRAP = 400
+ALPHA = 0.01  # false-alarm rate of the whole decision (target ≤ 2 %)
+RES_MIN_HZ = 1.0
+RES_BAND = 0.8  # scan resonance up to this share of the analysis band
+
+__all__ = ["Outcome", "Tested", "test_all"]
+
+
+@dataclass(frozen=True)
+class Tested:
+    cause: str
+    option: Option | None  # None for resonance (see frequency)
+    T: float  # likelihood ratio (max over the scan)
+    z: float  # standardised by the cause's own null
+    p: float  # bootstrap p-value of this cause alone
+    frequency_hz: float = math.nan
+    coef: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Outcome:
+    tested: list[Tested]  # best first
+    threshold: float  # standardised-statistic threshold at α
+    n: int
+    ar: np.ndarray  # whitening filter [1, −φ₁, …]
+    significant: bool
+    resid: np.ndarray  # whitened baseline residual
+    keep: np.ndarray  # rows used after whitening
+
+
+@dataclass(frozen=True)
+class GLS:
+    theta: np.ndarray
+    se: np.ndarray
+    rss: float
+    n: int
+
+
+def gls(
+    y: np.ndarray, X: np.ndarray, ar: np.ndarray, keep: np.ndarray, rows: np.ndarray | None = None
+) -> GLS:
+    """Least squares on the whitened rows (kept, and inside `rows` when given)."""
+    sel = keep if rows is None else keep & rows
+    yw, Xw = _whiten(y, ar, sel), _whiten(X, ar, sel)
+    theta, *_ = np.linalg.lstsq(Xw, yw, rcond=None)
+    r = yw - Xw @ theta
+    rss = float(r @ r)
+    n, k = Xw.shape
+    try:
+        cov = rss / max(n - k, 1) * np.linalg.inv(Xw.T @ Xw)
+        se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    except np.linalg.LinAlgError:
+        se = np.full(k, math.nan)
+    return GLS(theta, se, rss, n)
+
+
+def whitened_rss(y: np.ndarray, X: np.ndarray, theta: np.ndarray, ar: np.ndarray, sel: np.ndarray) -> float:
+    r = _whiten(y - X @ theta, ar, sel)
+    return float(r @ r)
+
+
+def _ar_filter(r: np.ndarray, p: int) -> np.ndarray:
+    """Yule–Walker AR(p) of r, as the whitening filter's coefficients."""
+    r = r - r.mean()
+    n = len(r)
+    acf = np.array([float(r[: n - k] @ r[k:]) / n for k in range(p + 1)])
+    if acf[0] <= 0:
+        return np.array([1.0])
+    from scipy.linalg import solve_toeplitz
+
+    phi = solve_toeplitz(acf[:p], acf[1 : p + 1])
+    return np.concatenate([[1.0], -phi])
+
+
+def _whiten(x: np.ndarray, a: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    return sig_lfilter(a, [1.0], x, axis=0)[keep]
+
+
+def _orth(W: np.ndarray, Q0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An orthonormal basis of W with the baseline projected out, and that residualised W."""
+    W = W - Q0 @ (Q0.T @ W)
+    q, r = np.linalg.qr(W)
+    good = np.abs(np.diag(r)) > 1e-9 * max(float(np.max(np.abs(np.diag(r)))), 1e-300)
+    return q[:, good], W
+
+
+def _lr(n: int, rss0: np.ndarray | float, drss: np.ndarray | float) -> np.ndarray:
+    return n * np.log(rss0 / np.maximum(np.asarray(rss0) - drss, 1e-300 * np.asarray(rss0)))
+
+
+def _gumbel_quantile(x: np.ndarray, q: float) -> float:
+    """(q) point of a Gumbel law with x's mean and spread (maxima of many nearly-χ² values)."""
+    beta = float(np.std(x)) * math.sqrt(6) / math.pi
+    mu = float(np.mean(x)) - 0.5772156649 * beta
+    return mu - beta * math.log(-math.log(q))
+
+
+def test_all(design: Design, seed: int = 0, boot: int = BOOTSTRAP, alpha: float = ALPHA) -> Outcome:
+    m = design.rows_mask
+    # Baseline LS on the moving rows, then the AR noise model of its residual.
+    theta, *_ = np.linalg.lstsq(design.X[m], design.y[m], rcond=None)
+    r = np.where(m, design.y - design.X @ theta, 0.0)
+    a = _ar_filter(r[m], AR_ORDER)
+    # Rows used: moving, and the filter's memory holds no stuck row.
+    keep = m.copy()
+    for lag in range(1, len(a)):
+        keep[lag:] &= m[:-lag]
+        keep[:lag] = False
+    y = _whiten(design.y, a, keep)
+    X = _whiten(design.X, a, keep)
+    n = len(y)
+    Q0, _ = np.linalg.qr(X)
+    e0 = y - Q0 @ (Q0.T @ y)
+    rss0 = float(e0 @ e0)
+    tested: list[Tested] = []
+    blocks: list[tuple[int, int]] = []  # each option's columns in the stacked basis G
+    owner: list[int] = []  # which tested cause each block belongs to
+    G_parts: list[np.ndarray] = []
+    col = 0
+    for cause, options in design.options.items():
+        T_best, opt_best, coef_best = -math.inf, None, None
+        first = len(G_parts)
+        for opt in options:
+            Wq, Wr = _orth(_whiten(opt.block, a, keep), Q0)
+            if Wq.shape[1] == 0:
+                continue
+            G_parts.append(Wq)
+            blocks.append((col, col + Wq.shape[1]))
+            col += Wq.shape[1]
+            owner.append(len(tested))
+            proj = Wq.T @ e0
+            T = float(_lr(n, rss0, float(proj @ proj)))
+            coef = np.linalg.lstsq(Wr, e0, rcond=None)[0]  # Frisch–Waugh: the block's coefficients
+            if _sign_ok(opt, coef) and T_best < T:
+                T_best, opt_best, coef_best = T, opt, coef
+        if len(G_parts) == first:
+            continue
+        tested.append(Tested(cause, opt_best, max(T_best, 0.0), 0.0, 1.0, coef=coef_best))
+    # Under the null the whitened errors are i.i.d. N(0, 1), so the projections Gᵀe of all the
+    # blocks at once are N(0, GᵀG): drawn directly, B draws cost nothing next to the rows.
+    rng = np.random.default_rng(seed)
+    G = np.column_stack(G_parts)
+    gram = G.T @ G
+    vals, vecs = np.linalg.eigh(gram)
+    root = vecs * np.sqrt(np.clip(vals, 0.0, None))
+    P = root @ rng.standard_normal((gram.shape[0], boot))
+    rss0_b = rng.chisquare(max(n - X.shape[1], 1), boot)
+    null = [np.full(boot, -math.inf) for _ in tested]
+    for (lo, hi), who in zip(blocks, owner, strict=True):
+        drss = np.einsum("ij,ij->j", P[lo:hi], P[lo:hi])
+        null[who] = np.maximum(null[who], _lr(n, rss0_b, drss))
+    # Resonance: a sinusoid at any Fourier frequency of the band, through the periodogram; under
+    # the null each of the N_f ordinates 2|F|²/n of white noise is χ²₂, independently.
+    fs_rows = 1.0 / float(np.median(np.diff(design.prep.t_rows)))
+    f_hi = RES_BAND * min(design.prep.band.cutoff_hz, fs_rows / 2)
+    drss_res, f0, n_f = _periodogram_peak(e0, fs_rows, f_hi)
+    f_ref = _refine_frequency(design, f0, a, keep, Q0, e0)
+    tested.append(Tested("resonance", None, float(_lr(n, rss0, drss_res)), 0.0, 1.0, frequency_hz=f_ref))
+    u = rng.random(boot)
+    null.append(_lr(n, rss0_b, -2.0 * np.log1p(-(u ** (1.0 / max(n_f, 1))))))
+
+    # Standardise each cause by its own null; the max over causes is the test.
+    Z_null = np.full(boot, -math.inf)
+    out: list[Tested] = []
+    for t, tn in zip(tested, null, strict=True):
+        med = float(np.median(tn))
+        spread = max(float(np.quantile(tn, 0.9)) - med, 1e-12)
+        zn = (tn - med) / spread
+        Z_null = np.maximum(Z_null, zn)
+        z = (t.T - med) / spread
+        p = (1 + int(np.count_nonzero(tn >= t.T))) / (boot + 1)
+        out.append(Tested(t.cause, t.option, t.T, z, p, t.frequency_hz, t.coef))
+    threshold = _gumbel_quantile(Z_null, 1 - alpha)
+    out.sort(key=lambda s: -s.z)
+    return Outcome(out, threshold, n, a, bool(out and out[0].z > threshold), e0, keep)
+
+
+def _sign_ok(opt: Option, coef: np.ndarray) -> bool:
+    return all(s == 0 or s * c > 0 for s, c in zip(opt.sign, coef, strict=False))
+
+
+def _periodogram_peak(e: np.ndarray, fs: float, f_hi: float) -> tuple[float, float, int]:
+    """Largest ΔRSS of a sinusoid at a Fourier frequency of the band (≈ 2|F|²/n), its frequency,
+    and how many frequencies were scanned."""
+    n = len(e)
+    F = np.fft.rfft(e)
+    f = np.fft.rfftfreq(n, 1.0 / fs)
+    band = (f >= RES_MIN_HZ) & (f <= f_hi)
+    drss = 2.0 * np.abs(F[band]) ** 2 / n
+    k = int(np.argmax(drss))
+    return float(drss[k]), float(f[band][k]), int(np.count_nonzero(band))
+
+
+def _refine_frequency(
+    design: Design, f0: float, a: np.ndarray, keep: np.ndarray, Q0: np.ndarray, e0: np.ndarray
+) -> float:
+    """The peak frequency to a fraction of a bin, by the exact projection on a few neighbours."""
+    T_total = float(design.prep.data.t[-1] - design.prep.data.t[0])
+    best_f, best = f0, -1.0
+    for f in f0 + np.linspace(-0.5, 0.5, 9) / max(T_total, 1e-9):
+        Wq, _ = _orth(_whiten(resonance_columns(design.prep, float(f)), a, keep), Q0)
+        proj = Wq.T @ e0
+        v = float(proj @ proj)
+        if v > best:
+            best_f, best = float(f), v
+    return best_f

@@ -1,0 +1,100 @@
+"""Checks before any verdict: is the recording analysable, and does the fit make physical sense?
+
+A recording that cannot be identified (too short, no excitation, absurd values) is bad input:
+DataFileError, exit status 2, one line. A fit that breaks physics (negative inertia or damping,
+a threshold outside the commands, a delay the time constant cannot show) is not a cause: the
+doctor reports `model_mismatch` with the reason.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from tvsd.analysis.dataset import Dataset
+from tvsd.errors import DataFileError
+
+MIN_ROWS = 500  # below this a 7-parameter fit with its noise model is not identifiable
+MIN_SECONDS = 1.0
+HUGE = 1e12  # larger values than this are not a measured speed, angle or command
+
+
+def check_recording(d: Dataset) -> None:
+    where = d.path or d.name
+    n = len(d.t)
+    if n < MIN_ROWS or d.duration_s < MIN_SECONDS:
+        raise DataFileError(
+            f"{where}: only {n} rows ({d.duration_s:.3g} s); the doctor needs at least {MIN_ROWS} rows "
+            f"and {MIN_SECONDS:g} s of a moving drive (record longer)"
+        )
+    cols: dict[str, np.ndarray] = {"u": d.u, "phi": d.position}
+    if d.speed is not None:
+        cols["omega"] = d.speed
+    for name, x in cols.items():
+        big = np.nonzero(~(np.abs(x) < HUGE))[0]
+        if len(big):
+            raise DataFileError(
+                f"{where}: row {int(big[0]) + 1} of the data: {name} = {x[big[0]]:g} is not a plausible "
+                "measurement (overflow or a unit error); repair or cut those rows"
+            )
+    if float(np.ptp(d.u)) <= 0.0:
+        raise DataFileError(
+            f"{where}: the command u is constant ({d.u[0]:g}): no excitation, nothing to identify "
+            "(record steps, a multisine or `tvsctl identify`)"
+        )
+    speed = d.speed if d.speed is not None else np.gradient(d.position, d.t)
+    if float(np.ptp(speed)) <= 0.0 or float(np.max(np.abs(speed))) == 0.0:
+        raise DataFileError(
+            f"{where}: the speed never changes: the drive did not move (is the motor connected, "
+            "the speed column right?)"
+        )
+
+
+def baseline_problem(p: dict[str, float], se: dict[str, float]) -> str | None:
+    """Why the baseline's parameters are not a physical drive, or None."""
+    if not p["input_gain"] > 0:
+        return (
+            f"the command does not accelerate the shaft (input gain {p['input_gain']:.3g} ≤ 0): "
+            "wrong sign or unit of u, or the speed is not this motor's"
+        )
+    if not p["input_gain"] > 3 * se.get("input_gain", 0.0):
+        return (
+            f"the command barely moves the shaft (input gain {p['input_gain']:.3g} ± "
+            f"{se.get('input_gain', 0.0):.2g}): no excitation reached the speed, or u is not this drive's"
+        )
+    if not p["J"] > 0:
+        return f"the fitted inertia is not positive (J = {p['J']:.3g})"
+    if not p["damping"] > -3 * se.get("damping", 0.0):
+        return f"the fitted damping is negative (kv = {p['damping']:.3g}): the rigid model does not hold"
+    if not p["tau_c"] > -3 * se.get("tau_c", 0.0):
+        return f"the fitted Coulomb friction is negative (τc = {p['tau_c']:.3g})"
+    return None
+
+
+def effect_problem(
+    cause: str, e: dict[str, Any], u: np.ndarray, time_constant_s: float, fs: float
+) -> str | None:
+    """Why the best extension's parameters are not physical, or None."""
+    top = float(np.max(np.abs(u)))
+    if cause == "deadzone" and not 0 < float(e["u0"]) < 0.9 * top:
+        return f"the dead zone {float(e['u0']):.3g} is outside the commands (|u| ≤ {top:.3g})"
+    if cause == "saturation":
+        share = float(np.mean(np.abs(u) > float(e["u_max"])))
+        if share < 0.01:
+            return f"the saturation {float(e['u_max']):.3g} is above almost every command (|u| ≤ {top:.3g})"
+    if cause == "delay":
+        d = float(e["delay_s"])
+        if not (1.0 / fs <= d < time_constant_s):
+            return (
+                f"the delay {1e3 * d:.3g} ms is not shorter than the drive's time constant "
+                f"({1e3 * time_constant_s:.3g} ms) that lets it be seen"
+            )
+    if cause == "friction_asymmetry":
+        ratio = float(e["ratio"])
+        if not (math.isfinite(ratio) and ratio > 0):
+            return f"the friction by direction is not positive both ways (ratio {ratio:.3g})"
+    if cause == "drift" and not abs(float(e["relative_change"])) < 0.9:
+        return f"the fitted drift ({100 * float(e['relative_change']):+.0f} %) is beyond what a drive does"
+    return None

@@ -1,0 +1,266 @@
+"""From the decision's winner to DESIGN.md's cause and parameters, and the held-out speed check.
+
+The decision (tvsd.analysis.calibrate) says which extension explains significantly more than
+the baseline; here its free coefficients become the cause's physical parameters (torques = J ×
+the fitted acceleration), scanned thresholds and delays are refitted structurally (the command
+itself transformed, the input gain shared), a drift must also show in refits of separate time
+windows, and what is reported must make physical sense (tvsd.analysis.sense).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from tvsd.analysis import calibrate as C
+from tvsd.analysis import design as D
+from tvsd.analysis import sense
+from tvsd.analysis.dataset import Dataset
+from tvsd.analysis.prep import Band, prepare
+
+DRIFT_WINDOWS = 5
+
+
+@dataclass
+class Verdict:
+    ranked: list[Any]
+    cause: str
+    effect: dict[str, Any]
+    reason: str | None
+    residual: np.ndarray  # unwhitened rows of the final model's equation error
+    X: np.ndarray  # the final model's columns
+    theta: np.ndarray
+    u_applied: np.ndarray  # the command as the final model's drive sees it
+
+
+def _refit_input(
+    design: D.Design, out: C.Outcome, cause: str, u: np.ndarray
+) -> tuple[dict[str, Any], np.ndarray]:
+    """Threshold or delay by the structural model: the drive fed the transformed command."""
+    top = float(np.max(np.abs(u)))
+    fs = design.prep.data.sample_rate_hz
+    grid: list[tuple[dict[str, Any], np.ndarray]] = []
+    if cause == "deadzone":
+        for x in np.linspace(0.0, 0.6, 61)[1:] * top:
+            if D.supported_threshold(design.prep, x):
+                grid.append(({"u0": float(x)}, np.where(np.abs(u) <= x, 0.0, u - np.sign(u) * x)))
+    elif cause == "saturation":
+        for x in np.linspace(0.2, 1.0, 41) * top:
+            if D.supported_threshold(design.prep, x):
+                grid.append(({"u_max": float(x)}, np.clip(u, -x, x)))
+    else:
+        for k in range(0, round(D.MAX_DELAY_S * fs) + 1):
+            grid.append(({"delay_s": k / fs}, D.shifted(u, k)))
+    if not grid:  # no supported value on the fine grid: the scanned one stands
+        grid.append(({}, u))
+    best: tuple[float, dict[str, Any], np.ndarray] | None = None
+    for effect, ua in grid:
+        rss = C.gls(design.y, D.with_input(design, ua), out.ar, out.keep).rss
+        if best is None or rss < best[0]:
+            best = (rss, effect, ua)
+    assert best is not None
+    return best[1], best[2]
+
+
+def _drift_agrees(design: D.Design, out: C.Outcome, parameter: str, sign: float) -> bool:
+    """Refits of the baseline on separate time windows must move the same way as the fitted drift."""
+    t = design.prep.t_rows
+    edges = np.linspace(t[0], t[-1], DRIFT_WINDOWS + 1)
+    idx = {"R": None, "kv": design.names.index("c"), "friction": design.names.index("f")}[parameter]
+    est, centres = [], []
+    for lo, hi in itertools.pairwise(edges):
+        rows = (t >= lo) & (t < hi)
+        if np.count_nonzero(rows & out.keep) < 20 * design.X.shape[1]:
+            continue
+        th = C.gls(design.y, design.X, out.ar, out.keep, rows).theta
+        est.append(th[0] + th[1] if idx is None else th[idx])
+        centres.append(0.5 * (lo + hi))
+    if len(est) < 3:
+        return False
+    x, y = np.array(centres), np.array(est)
+    slope, icpt = np.polyfit(x, y, 1)
+    resid = y - (slope * x + icpt)
+    s = math.sqrt(float(resid @ resid) / max(len(x) - 2, 1)) / math.sqrt(float(np.sum((x - x.mean()) ** 2)))
+    return bool(slope * sign > 0 and (s == 0 or abs(slope) / s > 2.0))
+
+
+def name_cause(
+    design: D.Design,
+    out: C.Outcome,
+    fit: C.GLS,
+    params: dict[str, float],
+    err: dict[str, float],
+    data: Dataset,
+) -> Verdict:
+    from tvsd.analysis.doctor import Scored
+
+    J = params["J"]
+    u = data.u
+    ranked: list[Any] = []
+    chosen: tuple[str, dict[str, Any], np.ndarray, np.ndarray] | None = None  # cause, effect, X, u
+    for t in out.tested:
+        above = out.significant and t.z > out.threshold
+        effect: dict[str, Any] = dict(t.option.effect) if t.option is not None else {}
+        X_ext, u_app = design.X, u
+        if t.cause == "resonance":
+            X_ext = np.column_stack([design.X, D.resonance_columns(design.prep, t.frequency_hz)])
+            effect = {"frequency_hz": t.frequency_hz}
+        elif t.option is not None and t.cause not in D.INPUT_CAUSES:
+            X_ext = np.column_stack([design.X, t.option.block])
+        dissolved = False
+        if above and chosen is None and t.option is not None and t.cause in D.INPUT_CAUSES:
+            effect, u_app = _refit_input(design, out, t.cause, u)
+            X_ext = D.with_input(design, u_app)
+            # The structural refit lands on "no effect" (a delay under two samples, which the
+            # baseline's two input columns already hold): the scanned block fitted noise.
+            fs = design.prep.data.sample_rate_hz
+            dissolved = t.cause == "delay" and float(effect.get("delay_s", 0.0)) < 2.0 / fs
+        if (above and chosen is None) or t.cause in (
+            "imbalance",
+            "cogging",
+            "resonance",
+            "friction_asymmetry",
+        ):
+            th = C.gls(design.y, X_ext, out.ar, out.keep).theta
+            effect.update(_translate(t.cause, effect, th, design, J))
+        ok = above and not dissolved
+        if ok and t.cause == "drift" and t.coef is not None:
+            ok = _drift_agrees(design, out, str(effect["parameter"]), float(t.coef[0]))
+        ranked.append(Scored(t.cause, effect, t.z, t.p, ok and chosen is None))
+        if ok and chosen is None:
+            chosen = (t.cause, effect, X_ext, u_app)
+    cause, effect_out = "none", dict[str, Any]()
+    X_fin, u_fin = design.X, u
+    if chosen is not None:
+        cause, effect_out, X_fin, u_fin = chosen
+        # Judge the drive's parameters with the named cause in the model: an unmodelled strong
+        # torque inflates the baseline's uncertainty, not the drive's.
+        from tvsd.analysis.doctor import _physical
+
+        k = design.X.shape[1]
+        fin = C.gls(design.y, X_fin, out.ar, out.keep)
+        params, err = _physical(design, fin.theta[:k], fin.se[:k], data.b_u, data.b_omega)
+    reason = sense.baseline_problem(params, err)
+    if chosen is not None and reason is None:
+        problem = sense.effect_problem(cause, effect_out, u, params["time_constant_s"], data.sample_rate_hz)
+        if problem is not None:
+            reason = f"the best extension, {cause}, {problem}"
+    if reason is not None:
+        cause, effect_out = "model_mismatch", {"reason": reason}
+        ranked = [Scored(s.cause, s.effect, s.z, s.p, False) if s.significant else s for s in ranked]
+    th = C.gls(design.y, X_fin, out.ar, out.keep).theta
+    residual = design.y - X_fin @ th
+    return Verdict(ranked, cause, effect_out, reason, residual, X_fin, th, u_fin)
+
+
+def _translate(
+    cause: str, effect: dict[str, Any], th: np.ndarray, design: D.Design, J: float
+) -> dict[str, Any]:
+    """Free coefficients of the extended fit → the cause's parameters (DESIGN.md names)."""
+    k = design.X.shape[1]
+    names = dict(zip(design.names, th[:k], strict=False))
+    extra = th[k:]
+    if cause in ("imbalance", "cogging", "resonance") and len(extra) >= 2:
+        cs, cc = float(extra[0]), float(extra[1])  # torque/J = cs·sin x + cc·cos x = (A/J)·sin(x + ψ)
+        return {"amplitude": abs(J) * math.hypot(cs, cc), "phase": math.atan2(cc, cs)}
+    if cause == "friction_asymmetry" and len(extra) >= 1:
+        w = np.abs(design.prep.rows(design.prep.speed)[design.rows_mask])
+        v = float(np.median(w)) if len(w) else 1.0
+        tc, tf = names["c"], names["f"]
+        cn = float(extra[0])
+        fn = float(extra[1]) if len(extra) > 1 else 0.0
+        kv_pos, kv_neg = -tc * J, -(tc + cn) * J
+        tc_pos, tc_neg = -tf * J, -(tf + fn) * J
+        # Which levels carry the ratio: without back-EMF in the damping (a torque, current or
+        # force command) the viscous slopes are friction alone; a voltage drive's slope holds
+        # kM·kb/R of an unknown motor, so there the Coulomb levels speak.
+        if design.back_emf and len(extra) > 1 and tc_pos > 0:
+            ratio = tc_neg / tc_pos
+        elif kv_pos > 0:
+            ratio = kv_neg / kv_pos
+        else:
+            ratio = math.nan
+        return {
+            "ratio": ratio,
+            "at_speed": v,
+            "kv_pos": kv_pos,
+            "kv_neg": kv_neg,
+            "tau_c_pos": tc_pos,
+            "tau_c_neg": tc_neg,
+        }
+    if cause == "drift" and len(extra) >= 1:
+        d = float(extra[0])
+        p = effect.get("parameter")
+        if p == "R":
+            a = names["a0"] + names["a1"]
+            g = d / a if a else math.nan
+            return {"relative_change": 1.0 / (1.0 + g) - 1.0 if g > -1 else math.inf}
+        ref = names["c"] if p == "kv" else names["f"]
+        return {"relative_change": d / ref if ref else math.nan}
+    return {}
+
+
+def heldout_speed(
+    design: D.Design,
+    out: C.Outcome,
+    data: Dataset,
+    heldout: Dataset | None,
+    band: Band,
+    cause: str,
+    effect: dict[str, Any],
+    verdict: Verdict,
+) -> tuple[float, float, dict[str, float], dict[str, np.ndarray]]:
+    """Speed RMSE of baseline and extension on data their coefficients were not fitted on."""
+    from tvsd.analysis.doctor import _physical, _reduced, effect_array, simulate_speed
+
+    t_rows = design.prep.t_rows
+    split = t_rows[0] + D_SPLIT * (t_rows[-1] - t_rows[0])
+    rows = None if heldout is not None else t_rows < split
+    target = heldout if heldout is not None else data
+    base = C.gls(design.y, design.X, out.ar, out.keep, rows)
+    extended = cause not in ("none", "model_mismatch", "colored_noise")
+    ext = C.gls(design.y, verdict.X, out.ar, out.keep, rows) if extended else base
+    pb, _ = _physical(design, base.theta, base.se, data.b_u, data.b_omega)
+    pe, _ = _physical(
+        design, ext.theta[: design.X.shape[1]], ext.se[: design.X.shape[1]], data.b_u, data.b_omega
+    )
+    mask = np.ones(len(target.t), dtype=bool) if heldout is not None else target.t >= split
+    measured = target.speed if target.speed is not None else prepare(target, band).speed
+
+    k = design.X.shape[1]
+
+    def command(th: np.ndarray, u: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
+        """The command as the fitted input map applies it (timing, and an input-gain drift)."""
+        a0, a1 = float(th[0]), float(th[1])
+        v = a0 * u + a1 * D.shifted(u, -1)
+        if t is not None and len(th) > k:  # drift of R: the gain moves linearly over the record
+            v = v + float(th[k]) * u * (t - data.t[0]) / max(data.duration_s, 1e-9)
+        return v / (a0 + a1) if a0 + a1 else u
+
+    w_b = simulate_speed(_reduced(pb, data.b_u), target, command(base.theta, target.u), None)
+    rmse_b = float(np.sqrt(np.mean((w_b - measured)[mask] ** 2)))
+    w_e, rmse_e = w_b, rmse_b
+    if extended:
+        u_cmd = target.u
+        if cause == "delay":
+            u_cmd = D.shifted(u_cmd, round(float(effect["delay_s"]) * target.sample_rate_hz))
+        scales = {}
+        if cause == "friction_asymmetry" and effect.get("kv_pos") and effect.get("tau_c_pos"):
+            scales = {
+                "kv_neg_scale": float(effect["kv_neg"]) / float(effect["kv_pos"]),
+                "tc_neg_scale": float(effect["tau_c_neg"]) / float(effect["tau_c_pos"]),
+            }
+        eff = effect_array(cause, effect) if cause not in ("delay", "friction_asymmetry") else None
+        drift_t = target.t if cause == "drift" and effect.get("parameter") == "R" else None
+        model = _reduced(pe if cause != "drift" or drift_t is not None else pb, data.b_u, scales)
+        w_e = simulate_speed(model, target, command(ext.theta, u_cmd, drift_t), eff)
+        rmse_e = float(np.sqrt(np.mean((w_e - measured)[mask] ** 2)))
+    sim = {"t": target.t, "measured": measured, "baseline": w_b, "extended": w_e, "heldout": mask}
+    return rmse_b, rmse_e, pe, sim
+
+
+D_SPLIT = 2 / 3
