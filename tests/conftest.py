@@ -108,3 +108,19 @@ def _virtual_mcu_library() -> None:
     incremental). tvsd itself never compiles it: a checkout uses this build, a wheel its own."""
     if shutil.which("make") and (_FIRMWARE / "Makefile").is_file():
         subprocess.run(["make", "-s", "-C", str(_FIRMWARE), "host-lib"], check=False, capture_output=True)
+
+
+def replace_section(text: str, name: str, body: str) -> str:
+    """A config file's text with its top-level `name:` section replaced by `body` (the section's
+    indented lines), or added when it has none: a second `name:` would be a duplicate key, which
+    the config loader refuses."""
+    lines = text.splitlines(keepends=True)
+    start = next((i for i, line in enumerate(lines) if line.startswith(f"{name}:")), None)
+    if start is None:
+        return text.rstrip("\n") + f"\n\n{name}:\n{body}"
+    end = start + 1
+    while end < len(lines) and (lines[end].startswith((" ", "#")) or not lines[end].strip()):
+        end += 1
+    while end > start + 1 and not lines[end - 1].strip():  # keep the blank line before the next one
+        end -= 1
+    return "".join(lines[:start]) + f"{name}:\n{body}" + "".join(lines[end:])

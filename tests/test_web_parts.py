@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import replace_section
 
 from tvsd.config import WebSettings, load_config
 from tvsd.daemon.web.feed import Cursor, LiveFeed, decode_points, encode
@@ -160,12 +161,8 @@ def test_the_imu_window_keeps_the_newest_samples_in_order():
 def _config_with(tmp_path: Path, web: str) -> Path:
     text = (CONFIG_DIR / "tvsd.yaml").read_text()
     text = text.replace("sil_profile: sil.yaml", f"sil_profile: {CONFIG_DIR / 'sil.yaml'}")
-    # the shipped file has a web: section: replace it (a second one is a duplicate key, refused)
-    start = text.index("\nweb:")
-    end = text.find("\n\n", start + 1)
-    rest = "" if end < 0 else text[end:]
     path = tmp_path / "tvsd.yaml"
-    path.write_text(text[:start] + rest + "\nweb:\n" + web)
+    path.write_text(replace_section(text, "web", web))
     return path
 
 
@@ -174,7 +171,6 @@ def test_the_web_section_is_off_by_default_and_checked_with_file_and_line(tmp_pa
     assert not WebSettings().enabled and WebSettings().host == "127.0.0.1"
     cfg = load_config(_config_with(tmp_path, "  enabled: true\n  socket: /run/tvsd/web.sock\n"))
     assert cfg.web.enabled and cfg.web.socket == Path("/run/tvsd/web.sock")
-    lines = (tmp_path / "tvsd.yaml").read_text().splitlines()
     for web, problem in (
         ("  enabled: true\n  port: 70000\n", "web.port: must be at most 65535"),
         ("  enabled: true\n  push_hz: 20\n", "web.push_hz: must be at most 5"),
@@ -187,7 +183,9 @@ def test_the_web_section_is_off_by_default_and_checked_with_file_and_line(tmp_pa
         with pytest.raises(ConfigError, match=problem) as err:
             load_config(path)
         line = int(str(err.value).split(":")[1])
-        assert len(lines) - 1 <= line <= len(lines) + 2, str(err.value)  # the web section's lines
+        lines = path.read_text().splitlines()
+        first = lines.index("web:") + 1  # 1-based: the error names a line of the web section
+        assert first <= line <= first + web.count("\n"), str(err.value)
     with pytest.raises(UsageError):
         WebSettings(push_hz=6)
     assert os.sep == "/"

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import aiohttp
 import pytest
-from conftest import wait_for
+from conftest import replace_section, wait_for
 
 from tvsd.daemon.web.server import HIGH_WATER
 
@@ -42,9 +42,7 @@ CHROMIUM_FLAGS = [
     "--window-size=1400,1500",
 ]
 STALL_S = 2.0
-WEB = f"""
-web:
-  enabled: true
+WEB = f"""  enabled: true
   port: 0
   stall_s: {STALL_S}
   send_buffer_kib: 4
@@ -87,7 +85,7 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, str, 
     for line, relaxed in RELAXED.items():
         assert line in text, line
         text = text.replace(line, relaxed)
-    cfg.write_text(text + WEB)
+    cfg.write_text(replace_section(text, "web", WEB))
     sock, data, log = tmp / "run" / "tvsd.sock", tmp / "data", tmp / "tvsd.log"
     report = data / "doctor-emps" / "report.md"  # what `tvsctl analyze --report` leaves
     report.parent.mkdir(parents=True)
