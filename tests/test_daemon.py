@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from conftest import wait_for
+from conftest import RELAXED_FAILSAFE, daemon_config, wait_for
 
 from tvsd.config import load_config
 from tvsd.recording.csvfile import read as read_recording
@@ -91,8 +91,22 @@ def spin_to(sock: Path, rps: float, timeout: float = 30.0, tol: float = 0.5) -> 
 
 @pytest.fixture
 def daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path, Path]]:
+    """A SIL daemon with the fail-safe times widened (conftest.RELAXED_FAILSAFE): these tests are
+    about what the daemon does, not about its fail-safe's timing."""
+    yield from _daemon(tmp_path, daemon_config(tmp_path))
+
+
+@pytest.fixture
+def daemon_40ms_stale(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path, Path]]:
+    """The scanner's own 40 ms stale-frame limit (the subject of the link-loss test); the firmware
+    watchdog and the link's loss report widened, as they are not what that test measures."""
+    changes = {k: v for k, v in RELAXED_FAILSAFE.items() if "link_timeout_ms" not in k}
+    yield from _daemon(tmp_path, daemon_config(tmp_path, changes))
+
+
+def _daemon(tmp_path: Path, config: Path) -> Iterator[tuple[subprocess.Popen[str], Path, Path]]:
     sock, data = tmp_path / "run" / "tvsd.sock", tmp_path / "data"
-    argv = ["--sil", "--socket", str(sock), "--data-dir", str(data)]
+    argv = ["--sil", "--config", str(config), "--socket", str(sock), "--data-dir", str(data)]
     # The daemon's log goes to a file: a pipe nobody reads would block its logging once full.
     log = tmp_path / "tvsd.log"
     with log.open("w") as log_file:
@@ -219,9 +233,18 @@ def test_kill_9_during_recording_reads_back(daemon, tmp_path):
     assert len(loop) >= 2000
 
 
-def test_mcu_link_loss_holds_pwm_0_within_50_ms_of_the_last_frame(daemon):
-    _, sock, _ = daemon
-    spin_to(sock, 15)
+def test_mcu_link_loss_holds_pwm_0_within_50_ms_of_the_last_frame(daemon_40ms_stale):
+    _, sock, _ = daemon_40ms_stale
+    # Before the loss is injected, a stall of this shared machine past 40 ms can latch the same
+    # safe state (issue 13); that is not the loss under test: clear it and spin up again (3 tries).
+    for attempt in range(3):
+        try:
+            spin_to(sock, 15)
+            break
+        except AssertionError:
+            if status(sock)["state"] != "fault" or attempt == 2:
+                raise
+            tvsctl(sock, "faults", "--clear")
     assert "result" in rpc(sock, "inject_fault", device="mcu", fault="link_loss")
     wait_status(sock, lambda s: s["state"] == "fault", 10, "the safe state")
     s = status(sock)
