@@ -8,6 +8,8 @@
  *      measured from the cycles the core spends asleep in its idle loop; pwm_set frames are
  *      then injected as fast as simavr delivers them to measure their cost per frame, and the
  *      load of the full budget (10 kHz state out + 10 kHz pwm_set in) is projected from both,
+ *   3b. a burst of frames that leaves the main loop several ticks late: every state frame still
+ *      carries its own tick's stamp (the tick ISR queues one sample per tick),
  *   4. no reset and no lost or damaged frame on the way (stats after the test).
  * Exit status 0 only if every check passed. */
 #include <stdarg.h>
