@@ -289,7 +289,7 @@ static load_t load_run(unsigned state_div, unsigned pwm_period_us, unsigned ms)
  * later tick's time. `late` is how far the most delayed frame left after its stamp, less the
  * least delayed one: over one tick (1600 cycles) shows the burst did make the loop late. */
 typedef struct {
-    int nstate, gaps, bad_dt;
+    int nstate, gaps, bad_dt, bad_enc;
     long pwm_counted;
     double late_us;
 } burst_t;
@@ -310,9 +310,20 @@ static burst_t burst_run(unsigned burst)
     uint8_t duty[2] = {0x00, 0x20};
     for (unsigned i = 0; i < burst; i++)
         send_frame(MSG_PWM_SET_ID, duty, sizeof duty);
-    run_for(MS(6));
+    /* The encoder turns one count every 800 cycles (quadrature on PC0/PC1: AB 00 01 11 10),
+     * 8 counts per state period: each frame's count must be 8 on from the last one's (a faster
+     * encoder's interrupts would add to the burst and leave the loop more than 8 ticks late). */
+    static const uint8_t quad[4] = {0, 1, 3, 2};
+    avr_irq_t *pin_a = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('C'), 0);
+    avr_irq_t *pin_b = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('C'), 1);
+    for (unsigned k = 1; k <= 120; k++) { /* 6 ms */
+        avr_raise_irq(pin_a, quad[k % 4] & 1u);
+        avr_raise_irq(pin_b, quad[k % 4] >> 1);
+        run_for(800);
+    }
     long prev_seq = -1;
     uint32_t prev_t = 0, lat_min = UINT32_MAX, lat_max = 0;
+    uint16_t prev_enc = 0;
     for (int i = 0; i < nframes; i++) {
         if (frames[i].id != MSG_STATE_ID)
             continue;
@@ -322,6 +333,15 @@ static burst_t burst_run(unsigned burst)
         lat_max = lat > lat_max ? lat : lat_max;
         r.gaps += prev_seq >= 0 && frames[i].seq != (uint16_t)(prev_seq + 1);
         r.bad_dt += prev_seq >= 0 && (uint32_t)(t - prev_t) != 6400u;
+        /* 8 counts per period; a count whose edge lands within the ISR latency of the tick's
+         * compare may fall on either side of it: +-1 */
+        uint16_t enc = get16(frames[i].payload + 4);
+        int d = (int16_t)(uint16_t)(enc - prev_enc);
+        if (getenv("SMOKE_DEBUG"))
+            printf("burst state seq %u: stamp step %ld, encoder step %d, left %.1f us after it\n",
+                   frames[i].seq, prev_seq >= 0 ? (long)(t - prev_t) : 0L, d, lat / 16.0);
+        r.bad_enc += prev_seq >= 0 && (d < 7 || d > 9);
+        prev_enc = enc;
         prev_seq = frames[i].seq;
         prev_t = t;
         r.nstate++;
@@ -457,13 +477,16 @@ int main(int argc, char **argv)
     /* 3b. the main loop late by several ticks: every tick still reports its own sample */
     const unsigned burst = 5; /* 55 B: fits the 64 B RX ring, so none is lost */
     burst_t b = burst_run(burst);
-    printf("info: burst of %u pwm_set: %d state frames, %d SEQ gaps, %d off-period, "
-           "%ld pwm_set counted, a frame left up to %.1f us later than another after its stamp\n",
-           burst, b.nstate, b.gaps, b.bad_dt, b.pwm_counted, b.late_us);
+    printf("info: burst of %u pwm_set: %d state frames, %d SEQ gaps, %d off-period, %d encoder "
+           "steps off, %ld pwm_set counted, a frame left up to %.1f us later than another after "
+           "its stamp\n",
+           burst, b.nstate, b.gaps, b.bad_dt, b.bad_enc, b.pwm_counted, b.late_us);
     check(b.late_us > 100.0, "the burst made the main loop late by more than one tick (%.1f us)",
           b.late_us);
-    check(b.nstate >= 14 && b.gaps == 0 && b.bad_dt == 0 && b.pwm_counted == (long)burst,
-          "late ticks keep their own stamps: exact period, no gap, %d state frames", b.nstate);
+    check(b.nstate >= 14 && b.gaps == 0 && b.bad_dt == 0 && b.bad_enc == 0 &&
+              b.pwm_counted == (long)burst,
+          "late ticks keep their own samples: exact period, encoder 8 +-1 counts a frame, no gap, "
+          "%d state frames", b.nstate);
 
     /* 4. still the same boot (no hardware-watchdog reset), nothing lost or damaged */
     run_for(MS(40)); /* longer than the 30 ms hardware watchdog */

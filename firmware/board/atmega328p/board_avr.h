@@ -9,7 +9,9 @@
  * every tick still reports its own sample. Beyond BOARD_TICK_QUEUE behind, ticks are dropped (the
  * host sees a stamp gap). 8-bit indices: the AVR reads and writes each in one instruction, so
  * neither side needs cli(). Inline: the pop runs 10,000 times a second on a busy chip. */
-#define BOARD_TICK_QUEUE 8u
+/* A full RX ring (64 B: 5 pwm_set, ~11 000 cycles to parse) holds the loop ~7 ticks, more with
+ * the encoder's interrupts (the smoke test's burst: 6.6): 16 slots, 128 B of RAM. */
+#define BOARD_TICK_QUEUE 16u
 typedef struct {
     uint32_t time;
     int32_t encoder;
