@@ -8,6 +8,8 @@
  *      measured from the cycles the core spends asleep in its idle loop; pwm_set frames are
  *      then injected as fast as simavr delivers them to measure their cost per frame, and the
  *      load of the full budget (10 kHz state out + 10 kHz pwm_set in) is projected from both,
+ *   3b. a burst of frames that leaves the main loop several ticks late: every state frame still
+ *      carries its own tick's stamp (the tick ISR queues one sample per tick),
  *   4. no reset and no lost or damaged frame on the way (stats after the test).
  * Exit status 0 only if every check passed. */
 #include <stdarg.h>
@@ -280,6 +282,76 @@ static load_t load_run(unsigned state_div, unsigned pwm_period_us, unsigned ms)
     return r;
 }
 
+/* A burst of `burst` pwm_set frames handed to the UART at once, on a 2.5 kHz state stream: the
+ * main loop handles at most 16 bytes per pass, then one tick, so it falls several ticks behind
+ * while it works through them. Each state frame must still carry its own tick's stamp (exact
+ * period, no gap): a board that sampled only the latest tick would stamp a late frame with a
+ * later tick's time. `late` is how far the most delayed frame left after its stamp, less the
+ * least delayed one: over one tick (1600 cycles) shows the burst did make the loop late. */
+typedef struct {
+    int nstate, gaps, bad_dt, bad_enc;
+    long pwm_counted;
+    double late_us;
+} burst_t;
+
+static burst_t burst_run(unsigned burst)
+{
+    burst_t r;
+    memset(&r, 0, sizeof r);
+    uint8_t cfg[MSG_CONFIG_SET_LEN] = {0xE8, 0x03, 4, 0, 0, 0}; /* wd 1 s, state every 4 ticks */
+    send_frame(MSG_CONFIG_SET_ID, cfg, sizeof cfg);
+    uint8_t hb[4] = {1, 2, 3, 4};
+    send_frame(MSG_HEARTBEAT_ID, hb, sizeof hb);
+    run_for(MS(2));
+    uint16_t rs, dr;
+    uint32_t rx0 = stats_now(&rs, &dr);
+    run_for(MS(1));
+    nconsumed = nframes = 0;
+    uint8_t duty[2] = {0x00, 0x20};
+    for (unsigned i = 0; i < burst; i++)
+        send_frame(MSG_PWM_SET_ID, duty, sizeof duty);
+    /* The encoder turns one count every 800 cycles (quadrature on PC0/PC1: AB 00 01 11 10),
+     * 8 counts per state period: each frame's count must be 8 on from the last one's (a faster
+     * encoder's interrupts would add to the burst and leave the loop more than 8 ticks late). */
+    static const uint8_t quad[4] = {0, 1, 3, 2};
+    avr_irq_t *pin_a = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('C'), 0);
+    avr_irq_t *pin_b = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('C'), 1);
+    for (unsigned k = 1; k <= 120; k++) { /* 6 ms */
+        avr_raise_irq(pin_a, quad[k % 4] & 1u);
+        avr_raise_irq(pin_b, quad[k % 4] >> 1);
+        run_for(800);
+    }
+    long prev_seq = -1;
+    uint32_t prev_t = 0, lat_min = UINT32_MAX, lat_max = 0;
+    uint16_t prev_enc = 0;
+    for (int i = 0; i < nframes; i++) {
+        if (frames[i].id != MSG_STATE_ID)
+            continue;
+        uint32_t t = get32(frames[i].payload);
+        uint32_t lat = (uint32_t)frames[i].start - t; /* Timer1 counts CPU cycles from boot */
+        lat_min = lat < lat_min ? lat : lat_min;
+        lat_max = lat > lat_max ? lat : lat_max;
+        r.gaps += prev_seq >= 0 && frames[i].seq != (uint16_t)(prev_seq + 1);
+        r.bad_dt += prev_seq >= 0 && (uint32_t)(t - prev_t) != 6400u;
+        /* 8 counts per period; a count whose edge lands within the ISR latency of the tick's
+         * compare may fall on either side of it: +-1 */
+        uint16_t enc = get16(frames[i].payload + 4);
+        int d = (int16_t)(uint16_t)(enc - prev_enc);
+        if (getenv("SMOKE_DEBUG"))
+            printf("burst state seq %u: stamp step %ld, encoder step %d, left %.1f us after it\n",
+                   frames[i].seq, prev_seq >= 0 ? (long)(t - prev_t) : 0L, d, lat / 16.0);
+        r.bad_enc += prev_seq >= 0 && (d < 7 || d > 9);
+        prev_enc = enc;
+        prev_seq = frames[i].seq;
+        prev_t = t;
+        r.nstate++;
+    }
+    r.late_us = r.nstate ? (double)(lat_max - lat_min) / (F_CPU / 1000000.0) : 0;
+    uint32_t rx1 = stats_now(&rs, &dr);
+    r.pwm_counted = rx0 && rx1 ? (long)rx1 - (long)rx0 - 1 : -1;
+    return r;
+}
+
 static void report_load(const char *name, const load_t *r, unsigned period)
 {
     int expect = (int)(r->ms * 16000.0 / period);
@@ -401,6 +473,20 @@ int main(int argc, char **argv)
     check(r.busy < 0.85 && r.gaps == 0 && r.bad_dt == 0 && r.nstate >= 39 && r.nstate <= 41 &&
               r.pwm_counted == (long)r.pwm_sent && r.resyncs == 0 && r.tx_dropped == 0,
           "2 kHz both ways: exact period, nothing lost, CPU %.1f %% < 85 %%", 100 * r.busy);
+
+    /* 3b. the main loop late by several ticks: every tick still reports its own sample */
+    const unsigned burst = 5; /* 55 B: fits the 64 B RX ring, so none is lost */
+    burst_t b = burst_run(burst);
+    printf("info: burst of %u pwm_set: %d state frames, %d SEQ gaps, %d off-period, %d encoder "
+           "steps off, %ld pwm_set counted, a frame left up to %.1f us later than another after "
+           "its stamp\n",
+           burst, b.nstate, b.gaps, b.bad_dt, b.bad_enc, b.pwm_counted, b.late_us);
+    check(b.late_us > 100.0, "the burst made the main loop late by more than one tick (%.1f us)",
+          b.late_us);
+    check(b.nstate >= 14 && b.gaps == 0 && b.bad_dt == 0 && b.bad_enc == 0 &&
+              b.pwm_counted == (long)burst,
+          "late ticks keep their own samples: exact period, encoder 8 +-1 counts a frame, no gap, "
+          "%d state frames", b.nstate);
 
     /* 4. still the same boot (no hardware-watchdog reset), nothing lost or damaged */
     run_for(MS(40)); /* longer than the 30 ms hardware watchdog */

@@ -61,6 +61,12 @@ def _mcu_stm32() -> dict[str, Any]:
     return bench_stm32()
 
 
+def _fuzz(frames: int = 1_000_000) -> dict[str, Any]:
+    from tvsd.hw.mcu.fuzz_bench import bench_fuzz
+
+    return bench_fuzz(frames)
+
+
 def _doctor() -> dict[str, Any]:
     from tvsd.analysis.bench import bench_doctor
 
@@ -74,13 +80,14 @@ def _api() -> dict[str, Any]:
 
 
 # name -> function returning a flat dict of figures; one line per benchmark group.
-BENCHES: dict[str, Callable[[], dict[str, Any]]] = {
+BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "sim": _sim,
     "scan": _scan,
     "imu": _imu,
     "mcu": _mcu,
     "mcu_sil": _mcu_sil,
     "mcu_stm32": _mcu_stm32,
+    "fuzz": _fuzz,
     "doctor": _doctor,
     "loop": _loop,
     "api": _api,
@@ -96,7 +103,23 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     p.add_argument("--only", choices=sorted(BENCHES), action="append", help="run only these groups")
     p.add_argument("--json", action="store_true", help="print one JSON object (at the end, or on Ctrl-C)")
+    p.add_argument(
+        "--frames",
+        type=_positive_int,
+        default=1_000_000,
+        help="damaged frames per decoder for the fuzz group (default 10^6: 7 s idle, ~70 s loaded)",
+    )
     p.set_defaults(func=_run)
+
+
+def _positive_int(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number of frames >= 1, got {text!r}")
+    return n
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -114,7 +137,7 @@ def _run(args: argparse.Namespace) -> int:
             if on_terminal():
                 print(f"[{n}/{len(groups)}] {name} …", file=sys.stderr, flush=True)
             t0 = time.monotonic()
-            got = BENCHES[name]()
+            got = BENCHES[name](args.frames) if name == "fuzz" else BENCHES[name]()
             figures.update(got)
             done.append(name)
             if not args.json:  # each group as it finishes: a long suite is never silent

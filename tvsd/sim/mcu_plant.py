@@ -3,7 +3,7 @@
 The plant (tvsd.model.plant.advance, open loop) is stepped in chunks (1 ms by default) on the
 virtual MCU's manual clock. Each chunk applies the MCU's PWM duty × drive voltage (the host sets
 the PWM through ``McuLink.send_pwm``): paced, each PWM frame from the moment it arrived, to the
-control step (0.1 ms), as the motor integrates every one of a 2.5 kHz stream; stepped as fast as
+control step (0.1 ms), as the motor integrates every one of a 2 kHz (ATmega) stream; stepped as fast as
 possible (:meth:`run_until`), the duty of the chunk's start, held. Then it feeds the MCU what
 the sensors would see during the chunk, with the shaft angle interpolated linearly in time:
 
@@ -228,7 +228,7 @@ class McuPlant:
     def _chunk_volts(self, t0: float) -> None:
         """Each control step of the chunk gets the duty in force at its start: the host's PWM
         frames apply from their arrival on the pacing line (a frame that came while an earlier
-        chunk was being stepped applies from this chunk's start), so a 2.5 kHz PWM stream is not
+        chunk was being stepped applies from this chunk's start), so a 2 kHz PWM stream is not
         sampled once per chunk. A change the firmware made itself (its watchdog's cut) shows
         in the duty now once no frame is pending, and applies from the chunk's start."""
         changes, duty_now = self.mcu.pwm_changes()

@@ -16,7 +16,10 @@
 static volatile uint16_t t1_high; /* Timer1 overflows: bits 16..31 of the timestamp */
 static volatile int32_t encoder;
 static uint8_t enc_prev;
-volatile uint8_t board_tick_pending;
+
+/* The tick queue (board_avr.h): filled here, emptied by board_tick_pop() in the main loop. */
+board_tick_t board_tq[BOARD_TICK_QUEUE];
+volatile uint8_t board_tq_head, board_tq_tail;
 
 #define RX_RING 64u
 static uint8_t rx_buf[RX_RING];
@@ -194,25 +197,19 @@ ISR(TIMER1_CAPT_vect) { core_pulse_isr(PULSE_CH_OPTICAL, extend(ICR1)); }
  * uses the hardware capture latch. */
 ISR(INT0_vect) { core_pulse_isr(PULSE_CH_ZERO, extend(TCNT1)); }
 
-static uint32_t tick_time;
-static int32_t tick_encoder;
-
 /* The tick's time is its compare value: exact multiples of the period, whatever the latency. */
 ISR(TIMER1_COMPB_vect)
 {
     uint16_t due = OCR1B;
-    tick_time = extend(due);
-    tick_encoder = encoder;
+    uint8_t h = board_tq_head;
+    if ((uint8_t)(h - board_tq_tail) < BOARD_TICK_QUEUE) {
+        board_tick_t *slot = &board_tq[h & (BOARD_TICK_QUEUE - 1u)];
+        slot->time = extend(due);
+        slot->encoder = encoder;
+        __asm__ volatile("" ::: "memory"); /* the slot before the index that publishes it */
+        board_tq_head = (uint8_t)(h + 1u);
+    }
     OCR1B = (uint16_t)(due + CORE_TICKS_PER_TICK);
-    board_tick_pending++;
-}
-
-void board_tick_sample(uint32_t *t, int32_t *e)
-{
-    uint8_t s = board_irq_save();
-    *t = tick_time;
-    *e = tick_encoder;
-    board_irq_restore(s);
 }
 
 ISR(TIMER1_COMPA_vect)

@@ -26,22 +26,17 @@ int main(void)
         uint8_t b;
         for (uint8_t i = 0; i < 16u && board_rx_pop(&b); i++)
             core_rx_byte(b);
-        if (board_tick_pending) {
-            cli();
-            board_tick_pending--;
-            sei();
-            uint32_t t;
-            int32_t enc;
-            board_tick_sample(&t, &enc);
+        uint32_t t;
+        int32_t enc;
+        if (board_tick_pop(&t, &enc))
             core_tick(t, enc);
-        }
         core_poll();
         /* Idle until an interrupt leaves work (the 10 kHz tick at the latest). Interrupts are
          * off while we look for work; SEI takes effect after SLEEP, so no wake-up is missed.
          * A wake-up that leaves no work (the UART-empty interrupt, one per byte sent: 15 per
          * state frame) goes straight back to sleep instead of running a whole pass. */
         cli();
-        while (!board_tick_pending && !board_rx_pending() && !core_events) {
+        while (!board_tick_pending() && !board_rx_pending() && !core_events) {
             sleep_enable();
             sei();
             sleep_cpu();

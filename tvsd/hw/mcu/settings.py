@@ -35,7 +35,7 @@ class McuSettings:
     baud: int = option(2_000_000, doc="line rate; the firmware's", unit="bit/s", ge=9600)
     board: str = option(
         "atmega328p",
-        doc="the MCU board: identify must report it; its exchange rate (ATmega 2.5 kHz, STM32 10 kHz)",
+        doc="the MCU board: identify must report it; its exchange rate (ATmega 2 kHz, STM32 10 kHz)",
         choices=tuple(BOARD_EXCHANGE_HZ),
     )
     state_rate_hz: float | None = option(
