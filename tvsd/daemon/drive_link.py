@@ -11,7 +11,7 @@ clock (the law carries the angle forward from there). 2 ms: one frame apart, the
 encoder would quantise 25 rev/s to 1.2 % (2 ms: 0.24 %, for 1 ms of delay, nothing against the
 drive's 2.4 s time constant). Then it sends the control thread's latest command as the PWM duty,
 and keeps what it sent (`sent_volts`: the command the motor really got, held between frames, for
-the point stream's drive model). So the exchange with the MCU runs at the state rate (2.5 kHz on
+the point stream's drive model). So the exchange with the MCU runs at the state rate (2 kHz on
 the ATmega328P, 10 kHz on the STM32F405: cfg.mcu.board), one control tick (0.1 ms) behind at
 most, and the 10 kHz kernel never waits for it.
 
