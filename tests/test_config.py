@@ -323,3 +323,12 @@ def json_dump(value: object) -> str:
     import json
 
     return json.dumps(value)
+
+
+def test_a_control_character_is_one_line_naming_its_line(tmp_path):
+    """Found by the fuzz below: PyYAML's reader error is two lines and carries no line mark."""
+    path = tmp_path / "tvsd.yaml"
+    path.write_text('plant:\n  name: "a\x1fb"\n')
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert str(err.value) == f"{path}:2: not valid YAML (control character '\\x1f'); remove it"

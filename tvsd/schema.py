@@ -126,10 +126,15 @@ def load_yaml(path: Path) -> LinedDict:
         raise ConfigError(f"{path}:1: nested too deep (a config has 3 levels); fix the file") from None
     except ValueError as exc:  # e.g. an integer of more than 4300 digits (Python's int limit)
         raise ConfigError(f"{path}: a value YAML cannot read: {str(exc)[:80]}; fix it") from None
+    except yaml.reader.ReaderError as exc:  # a control character: no line mark, a byte position
+        line = text.count("\n", 0, max(exc.position, 0)) + 1
+        raise ConfigError(
+            f"{path}:{line}: not valid YAML (control character {chr(exc.character)!r}); remove it"
+        ) from exc
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
-        problem = getattr(exc, "problem", None) or str(exc)
+        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())  # one line, always
         raise ConfigError(f"{where}: not valid YAML ({problem}); fix the syntax there") from exc
     if data is None:
         data = LinedDict()
