@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import os
 import signal
 import stat
 import sys
@@ -118,9 +119,27 @@ def _make_dir(folder: Path, option: str) -> str | None:
     return None
 
 
+IO_PRIORITY = 40  # SCHED_FIFO of the event loop and the threads it starts; the control thread: 80
+
+
+def _io_side_realtime() -> None:
+    """--realtime: the event loop (heartbeats, MCU frames, the API) and the threads started after
+    it (IMU reader, recorder, SIL devices: new threads inherit the policy) on SCHED_FIFO below the
+    control thread, so that normal-priority load (a browser, a compile, CPU hogs) cannot hold the
+    safety path's I/O off the CPU past the firmware's watchdog. The kernel's RT throttling
+    (sched_rt_runtime_us) still leaves normal tasks 5 % of each CPU."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(IO_PRIORITY))
+        print(f"tvsd: event loop, I/O threads SCHED_FIFO granted (priority {IO_PRIORITY})", file=sys.stderr)
+    except OSError as exc:
+        print(f"tvsd: event loop SCHED_FIFO refused: {exc.strerror or exc}", file=sys.stderr)
+
+
 async def _serve(args: argparse.Namespace, cfg: Config, config_text: str) -> int:
     from tvsd.daemon.app import Daemon
 
+    if args.realtime:
+        _io_side_realtime()
     daemon = Daemon(
         cfg,
         args.socket,
