@@ -184,3 +184,11 @@ def test_atmega_image_in_simavr_through_mcu_link(image: simavr_mcu.Path) -> None
 def test_missing_image_is_one_clear_error(tmp_path: simavr_mcu.Path) -> None:
     with pytest.raises(simavr_mcu.SimavrMcuError, match="no firmware image"):
         simavr_mcu.SimavrMcu(tmp_path / "none.elf").start()
+
+
+def test_unreadable_image_is_one_clear_error(tmp_path: simavr_mcu.Path, image: simavr_mcu.Path) -> None:
+    junk = tmp_path / "junk.elf"
+    junk.write_bytes(b"not an ELF file")
+    said = r"exited with status 2: (?s:.*)cannot read the firmware"
+    with pytest.raises(simavr_mcu.SimavrMcuError, match=said):
+        simavr_mcu.SimavrMcu(junk).start()

@@ -89,8 +89,11 @@ class SimavrMcu(emulator.EmulatedBoard):
             self._proc, self._log_path, lambda seen: _PTY_LINE.search(seen) is not None, START_TIMEOUT_S
         )
         if log is None:
-            said = emulator.log_tail(self._log_path)
+            said = emulator.log_tail(self._log_path).strip()
+            status = self._proc.poll()
             self.close()
+            if status is not None:
+                raise SimavrMcuError(f"{RUNNER.name} exited with status {status}: {said}")
             raise SimavrMcuError(f"simavr did not start the board within {START_TIMEOUT_S:g} s: {said}")
         m = _PTY_LINE.search(log)
         assert m is not None
