@@ -15,9 +15,10 @@
  * a burst to catch up, and counts it in slipped_ms. So the board's clock never runs faster
  * than real time; slipped_ms / wall_ms says how much slower it ran.
  *
- * The UART bridge is written here with simavr's UART IRQs (the Debian package ships
- * libsimavrparts' uart_pty without a stable API): host bytes go in as fast as the UART's
- * XON/XOFF allows (its 2 Mbaud in simulated time), the board's bytes go out after each slice.
+ * The UART bridge is written here with simavr's UART IRQs rather than libsimavrparts' uart_pty
+ * (its own thread, no pacing): one thread interleaves pacing, input and output. Host bytes go in
+ * as fast as the UART's XON/XOFF allows (2 Mbaud in simulated time); the board's bytes go out
+ * after each 100 us slice.
  * A slave fd stays open in raw mode: no echo before the host opens the pty, and no EIO on the
  * master when the host closes it. Ends on SIGTERM/SIGINT (status 0) or if the AVR stops. */
 #define _GNU_SOURCE
