@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import asyncio
+import math
 from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any, TypeVar
@@ -19,18 +20,23 @@ B = TypeVar("B", bound=emulator.EmulatedBoard)
 
 class Exchange:
     """Keeps every state frame and answers the next `answers` of them with a pwm_set of `duty`
-    each (the daemon answers every one; a test bounds how many, so a backlog cannot build up)."""
+    each (the daemon answers every one; a test bounds how many, so a backlog cannot build up).
+    With `min_gap_s`, a state that arrives sooner than that after the last answered one (host
+    time: states read in one batch) is not answered, so a late event loop sends no burst."""
 
-    def __init__(self, duty: float) -> None:
+    def __init__(self, duty: float, min_gap_s: float = 0.0) -> None:
         self.duty = duty
+        self.min_gap_s = min_gap_s
         self.states: list[StateSample] = []
         self.answers = 0
         self.link: McuLink | None = None  # set once the link exists: McuLink(..., on_state=exchange)
+        self._last = -math.inf
 
     def __call__(self, s: StateSample) -> None:
         self.states.append(s)
-        if self.answers > 0 and self.link is not None:
+        if self.answers > 0 and self.link is not None and s.host_time - self._last >= self.min_gap_s:
             self.answers -= 1
+            self._last = s.host_time
             self.link.send_pwm(self.duty)
 
 
