@@ -10,17 +10,16 @@ are in the MCU's own ticks, or waits bounded in host seconds with a wide margin 
 
 from __future__ import annotations
 
-import asyncio
-import os
 from dataclasses import replace
 
+import mcu_exchange
 import pytest
 from conftest import until
 
 from tvsd.config import load_config
 from tvsd.daemon.drive_link import DriveLink
 from tvsd.errors import DeviceError
-from tvsd.hw.mcu.link import McuLink, StateSample
+from tvsd.hw.mcu.link import McuLink
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import load_spec
 from tvsd.sim import qemu_mcu
@@ -38,24 +37,14 @@ TICKS_PER_CONTROL_TICK = qemu_mcu.CLOCK_HZ // 10_000
 
 @pytest.fixture(scope="module")
 def image() -> qemu_mcu.Path:
-    missing = qemu_mcu.missing_tools()
-    if missing:
-        pytest.skip(f"STM32 toolchain/emulator missing: {' '.join(missing)}; fix: make system-deps")
-    return qemu_mcu.build_image()
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    return True
+    return mcu_exchange.built_image(
+        qemu_mcu.missing_tools(), "STM32 toolchain/emulator", qemu_mcu.build_image
+    )
 
 
 def test_stm32_image_in_qemu_through_mcu_link(image: qemu_mcu.Path) -> None:
     spec = load_spec(None)
     board_id = {v: k for k, v in spec.boards.items()}["stm32f405"]
-    states: list[StateSample] = []
 
     async def run(q: qemu_mcu.QemuMcu) -> None:
         duty = 0.25
@@ -63,22 +52,14 @@ def test_stm32_image_in_qemu_through_mcu_link(image: qemu_mcu.Path) -> None:
         # QEMU feeds the pty's bytes to the USART one main-loop turn each, far below 2 Mbaud on a
         # loaded host: the exchange answers a bounded number of states, or a backlog of pwm_sets
         # would hold up every later frame.
-        answers = 0
+        exchange = mcu_exchange.Exchange(duty)
+        states = exchange.states
 
-        def exchange(s: StateSample) -> None:  # the daemon's exchange: a PWM frame per state
-            nonlocal answers
-            states.append(s)
-            if answers > 0:
-                answers -= 1
-                link.send_pwm(duty)
-
-        async def drained() -> None:  # a round trip: what was sent before it has been handled
-            try:
-                await link.ping(timeout_s=60.0)
-            except DeviceError as exc:
-                raise AssertionError(f"{exc}; link {link.stats()}, board {q.load()}") from exc
+        async def drained() -> None:
+            await mcu_exchange.drained(link, 60.0, lambda: q.load())
 
         link = McuLink(replace(SETTINGS, port=q.port), on_state=exchange)
+        exchange.link = link
         async with link:
             ident = link.identity
             assert ident is not None
@@ -91,7 +72,7 @@ def test_stm32_image_in_qemu_through_mcu_link(image: qemu_mcu.Path) -> None:
             await drained()
 
             # 10 kHz: a state frame every control tick, the first 500 answered by a PWM frame each
-            answers = 500
+            exchange.answers = 500
             link.send_config(watchdog_ms=SETTINGS.watchdog_ms, state_div=1, max_on_ms=0)
             await until(lambda: len(states), 60, "state frames", ok=lambda n: n >= 3000, interval=0.05)
             # the stamps as sent, modulo the 16 bits protocol v1 carries (the host's v1 placement
@@ -149,15 +130,7 @@ def test_stm32_image_in_qemu_through_mcu_link(image: qemu_mcu.Path) -> None:
             await drive.start(0.0, 0.0)
         assert drive.link is None
 
-    q = qemu_mcu.QemuMcu(image, icount=True)
-    q.start()
-    pid = q.pid
-    assert pid is not None
-    try:
-        asyncio.run(run(q))
-    finally:
-        q.close()
-    assert not _alive(pid), "QEMU outlived the test"
+    mcu_exchange.run_on(qemu_mcu.QemuMcu(image, icount=True), run)
 
 
 def test_missing_image_is_one_clear_error(tmp_path: qemu_mcu.Path) -> None:

@@ -19,15 +19,11 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "avr_board.h"
 #include "avr_ioport.h"
-#include "avr_uart.h"
 #include "protocol_gen.h"
-#include "sim_avr.h"
-#include "sim_elf.h"
-#include "sim_io.h"
-#include "sim_irq.h"
 
-#define F_CPU 16000000ull
+#define F_CPU AVR_BOARD_F_CPU
 #define US(x) ((avr_cycle_count_t)((x) * (F_CPU / 1000000ull)))
 #define MS(x) (US(x) * 1000ull)
 
@@ -56,21 +52,8 @@ static void check(bool ok, const char *fmt, ...)
 /* ---- host -> AVR bytes, paced by the UART's XON/XOFF ---- */
 static uint8_t txq[1024];
 static unsigned txq_head, txq_tail;
-static bool uart_xon;
 static avr_irq_t *uart_in;
 static avr_cycle_count_t last_tx_cycle;
-
-static void on_xon(avr_irq_t *irq, uint32_t value, void *param)
-{
-    (void)irq; (void)value; (void)param;
-    uart_xon = true;
-}
-
-static void on_xoff(avr_irq_t *irq, uint32_t value, void *param)
-{
-    (void)irq; (void)value; (void)param;
-    uart_xon = false;
-}
 
 /* CRC-32 (zlib) bit by bit, independent of the firmware's table (protocol v2). */
 static uint32_t crc32_ref(const uint8_t *p, int n)
@@ -367,33 +350,11 @@ int main(int argc, char **argv)
         fprintf(stderr, "usage: %s firmware.elf\n", argv[0]);
         return 2;
     }
-    elf_firmware_t fw;
-    memset(&fw, 0, sizeof fw);
-    if (elf_read_firmware(argv[1], &fw) != 0) {
-        fprintf(stderr, "FAIL: cannot read %s\n", argv[1]);
+    avr = avr_board_boot(argv[1], "FAIL: simavr smoke");
+    if (!avr)
         return 2;
-    }
-    strcpy(fw.mmcu, "atmega328p");
-    fw.frequency = (uint32_t)F_CPU;
-    avr = avr_make_mcu_by_name(fw.mmcu);
-    if (!avr || avr_init(avr) != 0) {
-        fprintf(stderr, "FAIL: simavr has no %s core\n", fw.mmcu);
-        return 2;
-    }
-    avr_load_firmware(avr, &fw);
     avr->log = getenv("SMOKE_LOG") ? (uint8_t)atoi(getenv("SMOKE_LOG")) : 1;
-
-    uint32_t flags = 0;
-    avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
-    flags &= ~(uint32_t)AVR_UART_FLAG_STDIO; /* our bytes are binary frames, not console text */
-    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
-    uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT),
-                            on_uart_byte, NULL);
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON),
-                            on_xon, NULL);
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF),
-                            on_xoff, NULL);
+    uart_in = avr_board_uart0(avr, on_uart_byte);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), PIN_LASER),
                             on_laser, NULL);
 

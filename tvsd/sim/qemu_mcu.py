@@ -15,29 +15,24 @@ that dies leaves no emulator behind.
 
 from __future__ import annotations
 
-import ctypes
 import os
 import re
 import shutil
-import signal
 import socket
 import subprocess
-import tempfile
-import time
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
 
 from tvsd.errors import DeviceError
+from tvsd.sim import emulator
 
-FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
+FIRMWARE_DIR = emulator.FIRMWARE_DIR
 IMAGE = FIRMWARE_DIR / "build" / "tvsmcu_stm32f405.elf"
 QEMU = "qemu-system-arm"
 NM = "arm-none-eabi-nm"
 CLOCK_HZ = 168_000_000  # the board's HCLK; board_ticks() counts it
 START_TIMEOUT_S = 10.0
 _PTY_LINE = re.compile(rb"char device redirected to (\S+) \(label (\w+)\)")
-_PR_SET_PDEATHSIG = 1
 
 
 class QemuMcuError(DeviceError):
@@ -57,15 +52,7 @@ def missing_tools() -> list[str]:
 
 def build_image() -> Path:
     """`make -C firmware stm32`; the image's path, or one clear error."""
-    proc = subprocess.run(
-        ["make", "-C", str(FIRMWARE_DIR), "stm32"], capture_output=True, text=True, check=False
-    )
-    if proc.returncode != 0 or not IMAGE.exists():
-        raise QemuMcuError(
-            f"building {IMAGE} failed (make -C {FIRMWARE_DIR} stm32, status {proc.returncode}):\n"
-            f"{proc.stderr.strip()[-2000:]}"
-        )
-    return IMAGE
+    return emulator.make("stm32", IMAGE, QemuMcuError)
 
 
 def symbols(elf: Path) -> dict[str, int]:
@@ -91,25 +78,13 @@ class BoardLoad:
     wakeups: int  # WFI exits (wraps at 2^32)
 
 
-_prctl = ctypes.CDLL(None, use_errno=True).prctl  # resolved here: the child after fork only calls it
-
-
-def _die_with_parent() -> None:
-    """In the child: killed when the thread that started it ends (start QEMU from a long-lived one)."""
-    _prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
-
-
-class QemuMcu:
+class QemuMcu(emulator.EmulatedBoard):
     """``with QemuMcu() as q: McuLink(replace(settings, port=q.port))``."""
 
     def __init__(self, elf: Path | None = None, *, icount: bool = False) -> None:
-        self.elf = elf or IMAGE
+        super().__init__(elf or IMAGE, "qemu")
         self.icount = icount
-        self.port = ""
-        self._proc: subprocess.Popen[bytes] | None = None
-        self._dir = tempfile.TemporaryDirectory(prefix="tvsd-qemu-")
         self._monitor_path = os.path.join(self._dir.name, "monitor.sock")
-        self._log_path = os.path.join(self._dir.name, "qemu.log")  # a file: a pipe nobody reads fills
         self._load_addr: int | None = None
 
     def start(self) -> str:
@@ -124,29 +99,17 @@ class QemuMcu:
         cmd += ["-monitor", f"unix:{self._monitor_path},server=on,wait=off"]
         if self.icount:
             cmd += ["-icount", "shift=0,sleep=on"]
-        with open(self._log_path, "wb") as log:
-            self._proc = subprocess.Popen(
-                cmd,
-                stdin=subprocess.DEVNULL,
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                preexec_fn=_die_with_parent,  # prctl must run in the child
-                start_new_session=True,
-            )
-        seen = b""
-        deadline = time.monotonic() + START_TIMEOUT_S
-        while not (self.port and os.path.exists(self._monitor_path)):
-            left = deadline - time.monotonic()
-            if left <= 0 or self._proc.poll() is not None:
-                self.close()
-                said = seen.decode(errors="replace")[-500:]
-                raise QemuMcuError(f"{QEMU} did not start the board within {START_TIMEOUT_S:g} s: {said}")
-            time.sleep(min(left, 0.02))
-            with open(self._log_path, "rb") as log:
-                seen = log.read()
-            m = _PTY_LINE.search(seen)
-            if m:
-                self.port = m.group(1).decode()
+        self._proc = emulator.spawn(cmd, self._log_path)
+
+        def ready(log: bytes) -> bool:
+            m = _PTY_LINE.search(log)
+            self.port = m.group(1).decode() if m else ""
+            return bool(self.port) and os.path.exists(self._monitor_path)
+
+        if emulator.wait_started(self._proc, self._log_path, ready, START_TIMEOUT_S) is None:
+            said = emulator.log_tail(self._log_path)
+            self.close()
+            raise QemuMcuError(f"{QEMU} did not start the board within {START_TIMEOUT_S:g} s: {said}")
         return self.port
 
     def load(self) -> BoardLoad:
@@ -186,27 +149,3 @@ class QemuMcu:
                 ]
                 out.append("\n".join(lines))
             return out
-
-    def close(self) -> None:
-        proc, self._proc = self._proc, None
-        if proc is not None and proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        self._dir.cleanup()
-
-    @property
-    def pid(self) -> int | None:
-        return self._proc.pid if self._proc is not None else None
-
-    def __enter__(self) -> QemuMcu:
-        self.start()
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
