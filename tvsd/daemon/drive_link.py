@@ -23,6 +23,7 @@ laser watchdog_ms after the last heartbeat (heartbeats go every watchdog_ms / 4)
 
 from __future__ import annotations
 
+import asyncio
 import math
 import time
 from collections.abc import Callable
@@ -87,6 +88,7 @@ class DriveLink:
         self._sent_host = np.zeros(self._sent_n)  # ring of the PWM frames sent: host time, volts
         self._sent_volts = np.zeros(self._sent_n)
         self._sent = 0
+        self._pwm_due = False  # a PWM frame is scheduled for the states read in this batch
         self.clock_hz = 16_000_000
         self.plant: Any = None  # tvsd.sim.mcu_plant.McuPlant in SIL
         self.link: McuLink | None = None
@@ -169,12 +171,23 @@ class DriveLink:
         sample_ns = round(sampled * 1e9) if math.isfinite(sampled) else None
         self.runner.measured(phi, omega, round(s.host_time * 1e9), sample_ns)
         self.last_state_host = s.host_time
-        if self.link is not None:
-            duty = max(-1.0, min(1.0, self.runner.command * self.duty_per_volt))
-            if self.link.send_pwm(duty):
-                i = self._sent % self._sent_n
-                self._sent_host[i], self._sent_volts[i] = time.monotonic(), duty / self.duty_per_volt
-                self._sent += 1
+        if self.link is not None and not self._pwm_due:
+            # One PWM frame per batch of states read together, sent once the batch is placed: a
+            # late event loop reads several states at once, and answering each would burst frames
+            # into the MCU's receive buffer (the ATmega's holds ~5: heartbeats were lost, and its
+            # watchdog cut, in simavr under load, tests/test_mcu_avr.py's finding).
+            self._pwm_due = True
+            asyncio.get_running_loop().call_soon(self._send_pwm)
+
+    def _send_pwm(self) -> None:
+        self._pwm_due = False
+        if self.link is None:
+            return
+        duty = max(-1.0, min(1.0, self.runner.command * self.duty_per_volt))
+        if self.link.send_pwm(duty):
+            i = self._sent % self._sent_n
+            self._sent_host[i], self._sent_volts[i] = time.monotonic(), duty / self.duty_per_volt
+            self._sent += 1
 
     def sent_volts(self, t_mcu: np.ndarray) -> np.ndarray:
         """The motor voltage commanded at MCU times: each PWM frame's from when it was sent (its
