@@ -91,6 +91,9 @@ def test_identify_records_its_excitation_feeds_analyze_and_a_fault_aborts_it(dae
         assert ana.returncode in (0, 2) and len(ana.stderr.strip().splitlines()) <= 1, ana.stderr
 
     # --- a fault aborts it, the excitation off --------------------------------------------------------
+    # identify starts only at the setpoint (refused otherwise, -32002): the analyze just run shared
+    # the cores with the SIL plant, so wait for the speed to be back rather than for a time
+    wait_status(sock, lambda s: abs(s["rps"] - RPS) < 0.5, 60, f"{RPS} rev/s again", fault_ends=True)
     reply = rpc(sock, "identify", seconds=30)
     assert "result" in reply, reply  # refused: the daemon says why (a loaded machine: a fault)
     assert reply["result"]["state"] == "running"
