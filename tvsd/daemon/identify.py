@@ -161,10 +161,13 @@ class IdentifyRun:
                 await asyncio.sleep(WATCH_PERIOD_S)
                 if self.state != "running":
                     break
+                # read before the trouble check: the kernel sets its fault, then ends the
+                # excitation, so an excitation seen ended here has its fault visible below
+                active = self.d.runner.excitation_active
                 trouble = self._trouble()
                 if trouble is not None:
                     self.abort(trouble)
-                elif not self.d.runner.excitation_active:
+                elif not active:
                     if time.monotonic_ns() >= self.end_ns - round(2 * self.excitation.period_s * 1e9):
                         self._end("done", "")
                     else:
