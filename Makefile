@@ -21,6 +21,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 # 25 rev/s, scans the simulated scene and prints a status line per second until Ctrl-C.
 # Drive it from another terminal: TVSD_SOCKET=.run/tvsd.sock .venv/bin/tvsctl status
 run: $(STAMP) host-lib
+	mkdir -p .run
 	$(BIN)/tvsd --sil --realtime --demo --status-lines --socket .run/tvsd.sock --data-dir .run/data
 
 system-deps:
