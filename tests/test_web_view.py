@@ -9,7 +9,6 @@ printed); docs/img/web-view.png is one such screenshot.
 from __future__ import annotations
 
 import asyncio
-import json
 import re
 import socket
 import subprocess
@@ -22,6 +21,7 @@ from pathlib import Path
 import aiohttp
 import pytest
 from conftest import daemon_config, replace_section, wait_for
+from test_daemon import rpc, status
 
 from tvsd.daemon.web.server import HIGH_WATER
 
@@ -48,20 +48,6 @@ WEB = f"""  enabled: true
   send_buffer_kib: 4
   floor_every_s: 0
 """
-
-
-def rpc(sock: Path, method: str, **params: object) -> dict:
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-        s.connect(str(sock))
-        s.settimeout(10)
-        f = s.makefile("rwb")
-        f.write(json.dumps({"jsonrpc": "2.0", "id": 1, "method": method, "params": params}).encode() + b"\n")
-        f.flush()
-        return json.loads(f.readline())
-
-
-def status(sock: Path) -> dict:
-    return rpc(sock, "status")["result"]
 
 
 @pytest.fixture(scope="module")
