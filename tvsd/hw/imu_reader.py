@@ -88,7 +88,6 @@ class SensorReader:
         self._failures = 0
         self.next_time = 0.0
         self._last_data = 0.0
-        self._newest_t = 0.0  # host time of the newest delivered sample (see overdue)
 
     def status(self) -> dict[str, object]:
         return {
@@ -164,9 +163,6 @@ class SensorReader:
         periods, so short epochs with poorly known phases do not matter. (After a power cycle
         the phase restarts and a gap is the nearest whole number of periods.)
         """
-        return self._lost_between() + self.overdue
-
-    def _lost_between(self) -> int:
         tails = self.fit.tails
         first, last = max(self._first_epoch, min(tails, default=0)), self._delivered_epoch
         if first >= last or last not in tails or first not in tails:
@@ -174,18 +170,6 @@ class SensorReader:
         rate = self.fit.rate()
         step = round((self.fit.t0(last, rate) - self.fit.t0(first, rate)) * rate)
         return self._gaps + self.fit.dropped_fix + step
-
-    @property
-    def overdue(self) -> int:
-        """Samples taken since the newest delivered one that the FIFO cannot hold any more: lost
-        whatever happens next. A sensor gone for good delivers nothing again, so without this
-        `lost` stayed 0 while 81 % of its samples were missing. When the sensor comes back, the
-        new epoch's gap counts them instead (this drops to 0: never counted twice)."""
-        if not self.samples:
-            return 0
-        rate = self.fit.rate()
-        taken = int((self.clock.now() - self._newest_t) * rate)
-        return max(0, taken - reg.FIFO_SIZE // reg.FRAME_BYTES)
 
     def _new_epoch(self) -> None:
         self._pending.clear()
@@ -277,7 +261,6 @@ class SensorReader:
         self.samples += len(raw)
         accel, gyro = reg.to_si(raw, self.settings)
         t = self.fit.times(k, self.epoch)
-        self._newest_t = float(t[-1])
         self._ready.append(ImuBatch(self.name, k, self.epoch, t, accel, gyro - self.gyro_bias, raw))
 
 
