@@ -150,3 +150,18 @@ def daemon_config(directory: Path, changes: dict[str, str] = RELAXED_FAILSAFE) -
     path = directory / "tvsd.yaml"
     path.write_text(text)
     return path
+
+
+@pytest.fixture(scope="session")
+def setup():  # -> tvsd.control.setup.Setup (imported here: not every test needs the kernel)
+    """The default drive's set-up, with the control kernel loaded (or compiled) once for the
+    session, outside the waits of the tests that run a Runner."""
+    from tvsd.config import load_config
+    from tvsd.control.runner import Runner
+    from tvsd.control.setup import Setup
+
+    s = Setup.from_config(load_config(params="default"))
+    warm = Runner(s)
+    warm.start(max_ticks=2)
+    warm.join(120.0)
+    return s

@@ -17,21 +17,11 @@ from conftest import wait_for
 from numba.core.runtime import _nrt_python as nrt_stats  # type: ignore[attr-defined]
 from numba.core.runtime import rtsys
 
-from tvsd.config import load_config
 from tvsd.control import scanning
 from tvsd.control.runner import EXTRAPOLATE_MAX_NS, Runner
 from tvsd.control.setup import Setup
 from tvsd.model import params as P
 from tvsd.model import plant as K
-
-
-@pytest.fixture(scope="module")
-def setup() -> Setup:
-    s = Setup.from_config(load_config(params="default"))
-    warm = Runner(s)  # load (or compile) the kernel once, outside the tests' waits
-    warm.start(max_ticks=2)
-    warm.join(120.0)
-    return s
 
 
 def _law(eps: float, eps_dot: float, g: tuple[float, float, float, float], umax: float) -> float:

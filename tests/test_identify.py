@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import wait_for
+from test_control_runner import _law
 
 from tvsd.config import IdentifySettings, load_config
 from tvsd.control import scanning
@@ -112,21 +113,6 @@ def test_the_table_is_bounded_and_holds_each_kind():
 
 
 # --- the control thread plays it ---------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def setup() -> Setup:
-    s = Setup.from_config(load_config(params="default"))
-    warm = Runner(s, excitation_rows=10)
-    warm.start(max_ticks=2)
-    warm.join(120.0)
-    return s
-
-
-def _law(eps: float, eps_dot: float, g: tuple[float, float, float, float], umax: float) -> float:
-    gp, gd, gr, g0 = g
-    u = gp * math.tanh(eps) + gd * math.tanh(eps_dot) + gr * math.tanh(g0 * eps)
-    return max(-umax, min(umax, u))
-
-
 def test_the_loop_plays_the_table_at_its_own_tick_times(setup: Setup) -> None:
     """SIL runner scanning at 15 rev/s: a 0.4 s table of speed steps (±0.5 rev/s) and a ±1 V PRBS.
     For every tick, the row due at its wake time is the one it used: the speed reference ramps

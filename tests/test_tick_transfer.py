@@ -11,21 +11,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pytest
 
-from tvsd.config import load_config
 from tvsd.control.runner import Runner
 from tvsd.control.setup import Setup
 from tvsd.daemon.session_recording import SessionRecording
-
-
-@pytest.fixture(scope="module")
-def setup() -> Setup:
-    s = Setup.from_config(load_config(params="default"))
-    warm = Runner(s)  # load (or compile) the kernel once, outside the tests' waits
-    warm.start(max_ticks=2)
-    warm.join(120.0)
-    return s
 
 
 class Capture(SessionRecording):
