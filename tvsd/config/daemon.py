@@ -55,7 +55,7 @@ class DaemonSettings:
     stopped_rps: float = option(
         0.5, doc="at stop, the aperture counts as stopped below this", unit="rev/s", gt=0, le=10
     )
-    # The API's bounds (tvsd/daemon/rpc.py Limits; README "Daemon API limits"): no client may
+    # The API's bounds (tvsd/daemon/rpc/limits.py Limits; README "Daemon API limits"): no client may
     # stall the event loop or grow a reply without end.
     rpc_max_batch: int = option(50, doc="requests in one batch line", ge=1, le=1000)
     rpc_max_reply_bytes: int = option(1 << 20, doc="one reply line", unit="bytes", ge=4096, le=1 << 28)

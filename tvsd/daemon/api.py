@@ -6,7 +6,7 @@ change its parts themselves. Results become JSON here, at the edge.
 Methods (docs/architecture.md, "Daemon API"): status, speed, scan_start, scan_stop, aim, aim_xyz, gains_get,
 gains_set, imu_calibrate, record_start, record_stop, record_window, faults_list, faults_clear,
 inject_fault (SIL devices only), identify, identify_status, identify_abort, shutdown. The point
-stream and status are subscriptions (tvsd/daemon/rpc.py: `subscribe`).
+stream and status are subscriptions (tvsd/daemon/rpc: `subscribe`).
 """
 
 from __future__ import annotations
