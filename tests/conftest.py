@@ -165,3 +165,16 @@ def setup():  # -> tvsd.control.setup.Setup (imported here: not every test needs
     warm.start(max_ticks=2)
     warm.join(120.0)
     return s
+
+
+@pytest.fixture
+def sock_path(tmp_path: Path):  # -> Iterator[Path]
+    """A socket path in tmp_path, or in a short directory when tmp_path would exceed the 107-byte
+    limit of sun_path (the RPC server's tests)."""
+    import tempfile
+
+    if len(str(tmp_path)) < 90:
+        yield tmp_path / "tvsd.sock"
+        return
+    with tempfile.TemporaryDirectory(prefix="tvs") as short:
+        yield Path(short) / "tvsd.sock"

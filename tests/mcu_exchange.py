@@ -1,18 +1,23 @@
 """The daemon's side of the exchange, for the tests that drive an emulated board through McuLink
-(tests/test_mcu_stm32.py, tests/test_mcu_avr.py): `from mcu_exchange import Exchange`."""
+(tests/test_mcu_stm32.py, tests/test_mcu_avr.py): the exchange, the identity and watchdog checks
+both boards pass."""
 
 from __future__ import annotations
 
 import asyncio
 import math
-from collections.abc import Callable, Coroutine
+from collections.abc import Awaitable, Callable, Coroutine
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, TypeVar
 
 import pytest
+from conftest import until
 
 from tvsd.errors import DeviceError
 from tvsd.hw.mcu.link import McuLink, StateSample
+from tvsd.hw.mcu.settings import McuSettings
+from tvsd.hw.mcu.spec import ProtocolSpec
 from tvsd.sim import emulator
 
 B = TypeVar("B", bound=emulator.EmulatedBoard)
@@ -29,8 +34,13 @@ class Exchange:
         self.min_gap_s = min_gap_s
         self.states: list[StateSample] = []
         self.answers = 0
-        self.link: McuLink | None = None  # set once the link exists: McuLink(..., on_state=exchange)
+        self.link: McuLink | None = None  # open_link
         self._last = -math.inf
+
+    def open_link(self, settings: McuSettings) -> McuLink:
+        """The link to the board (not started) whose state frames come here."""
+        self.link = McuLink(settings, on_state=self)
+        return self.link
 
     def __call__(self, s: StateSample) -> None:
         self.states.append(s)
@@ -68,3 +78,59 @@ def built_image(missing: list[str], what: str, build: Callable[[], Path]) -> Pat
     if missing:
         pytest.skip(f"{what} missing: {' '.join(missing)}; fix: make system-deps")
     return build()
+
+
+def check_identity(
+    link: McuLink, spec: ProtocolSpec, settings: McuSettings, board: str, clock_hz: int, other: str
+) -> None:
+    """The board identified itself as `board` at `clock_hz` speaking this tvsd's protocol, and the
+    host's settings accept it for `board` and name the fix when they say `other`."""
+    ident = link.identity
+    assert ident is not None
+    board_id = {v: k for k, v in spec.boards.items()}[board]
+    assert (ident.board, ident.clock_hz, ident.proto_version) == (board_id, clock_hz, spec.version)
+    reported = spec.boards[ident.board]
+    assert replace(settings, board=board).board_problem(reported) is None
+    assert f"set mcu.board: {board}" in str(replace(settings, board=other).board_problem(reported))
+
+
+async def check_watchdog_cut(
+    link: McuLink,
+    settings: McuSettings,
+    duty: float,
+    *,
+    state_div: int,
+    timeout_s: float,
+    drained: Callable[[], Awaitable[None]],
+    outputs_cut: Callable[[], Awaitable[None]],
+    pwm_on: Callable[[], Awaitable[None]],
+) -> None:
+    """Heartbeats stop: the board's watchdog cuts PWM and laser (`outputs_cut` checks the pins)
+    and says so, refuses PWM until a heartbeat arms it again, then drives `duty` again (`pwm_on`)."""
+    link.send_config(watchdog_ms=settings.watchdog_ms, state_div=state_div, max_on_ms=0)
+    await drained()
+    await link.stop_heartbeat()
+    await until(
+        lambda: list(link.faults),
+        timeout_s,
+        "watchdog_expired",
+        ok=lambda f: f and f[-1].name == "watchdog_expired",
+    )
+    assert link.faults[-1].detail == settings.watchdog_ms
+    await outputs_cut()
+    # and refuses PWM until a heartbeat arms it again
+    link.send_pwm(duty)
+    await until(
+        lambda: list(link.refusals),
+        timeout_s,
+        "a refused pwm_set",
+        ok=lambda r: r and r[-1].name == "pwm_set",
+    )
+    assert "heartbeat" in link.refusals[-1].reason
+    await outputs_cut()
+    await drained()  # arms it
+    link.start_heartbeat()
+    link.send_pwm(duty)
+    link.send_config(watchdog_ms=settings.watchdog_ms, state_div=0, max_on_ms=0)
+    await drained()
+    await pwm_on()

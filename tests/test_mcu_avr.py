@@ -33,7 +33,6 @@ import mcu_exchange
 import pytest
 from conftest import until
 
-from tvsd.hw.mcu.link import McuLink
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import load_spec
 from tvsd.sim import simavr_mcu
@@ -96,7 +95,6 @@ def image() -> simavr_mcu.Path:
 
 def test_atmega_image_in_simavr_through_mcu_link(image: simavr_mcu.Path) -> None:
     spec = load_spec(None)
-    board_id = {v: k for k, v in spec.boards.items()}["atmega328p"]
     duty = 0.25
     want = round(duty * 32767)
 
@@ -107,20 +105,9 @@ def test_atmega_image_in_simavr_through_mcu_link(image: simavr_mcu.Path) -> None
         async def drained() -> None:
             await mcu_exchange.drained(link, 10.0, lambda: m.pace())
 
-        link = McuLink(replace(SETTINGS, port=m.port), on_state=exchange)
-        exchange.link = link
+        link = exchange.open_link(replace(SETTINGS, port=m.port))
         async with link:
-            ident = link.identity
-            assert ident is not None
-            assert (ident.board, ident.clock_hz, ident.proto_version) == (
-                board_id,
-                simavr_mcu.CLOCK_HZ,
-                spec.version,
-            )
-            assert SETTINGS.board_problem(spec.boards[ident.board]) is None
-            assert "set mcu.board: atmega328p" in str(
-                replace(SETTINGS, board="stm32f405").board_problem(spec.boards[ident.board])
-            )
+            mcu_exchange.check_identity(link, spec, SETTINGS, "atmega328p", simavr_mcu.CLOCK_HZ, "stm32f405")
             rtts = [await link.ping(timeout_s=10.0) for _ in range(20)]
             assert all(r > 0 for r in rtts), rtts
 
@@ -157,36 +144,13 @@ def test_atmega_image_in_simavr_through_mcu_link(image: simavr_mcu.Path) -> None
             await until(m.outputs, 10, "the laser pin high", ok=lambda o: o is not None and o.laser)
 
             # heartbeats stop: the board's watchdog cuts PWM and laser and says so
-            link.send_config(watchdog_ms=SETTINGS.watchdog_ms, state_div=STATE_DIV, max_on_ms=0)
-            await drained()
-            await link.stop_heartbeat()
-            await until(
-                lambda: list(link.faults),
-                10,
-                "watchdog_expired",
-                ok=lambda f: f and f[-1].name == "watchdog_expired",
-            )
-            assert link.faults[-1].detail == SETTINGS.watchdog_ms
-            await until(
-                m.outputs, 10, "PWM and laser cut", ok=lambda o: o is not None and not (o.pwm or o.laser)
-            )
-            # and refuses PWM until a heartbeat arms it again
-            link.send_pwm(duty)
-            await until(
-                lambda: list(link.refusals),
-                10,
-                "a refused pwm_set",
-                ok=lambda r: r and r[-1].name == "pwm_set",
-            )
-            assert "heartbeat" in link.refusals[-1].reason
-            cut = m.outputs()
-            assert cut is not None and not cut.pwm
-            await drained()  # arms it
-            link.start_heartbeat()
-            link.send_pwm(duty)
-            link.send_config(watchdog_ms=SETTINGS.watchdog_ms, state_div=0, max_on_ms=0)
-            await drained()
-            await until(m.outputs, 10, "PWM on again", ok=lambda o: o is not None and o.pwm)
+            await mcu_exchange.check_watchdog_cut(
+                link, SETTINGS, duty, state_div=STATE_DIV, timeout_s=10, drained=drained,
+                outputs_cut=lambda: until(
+                    m.outputs, 10, "PWM and laser cut", ok=lambda o: o is not None and not (o.pwm or o.laser)
+                ),
+                pwm_on=lambda: until(m.outputs, 10, "PWM on again", ok=lambda o: o is not None and o.pwm),
+            )  # fmt: skip
         rtts.sort()
         print(f"simavr round trip p50 {rtts[len(rtts) // 2] * 1e6:.0f} µs; pace {m.pace()}")
 

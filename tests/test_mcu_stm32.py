@@ -19,7 +19,6 @@ from conftest import until
 from tvsd.config import load_config
 from tvsd.daemon.drive_link import DriveLink
 from tvsd.errors import DeviceError
-from tvsd.hw.mcu.link import McuLink
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import load_spec
 from tvsd.sim import qemu_mcu
@@ -49,7 +48,6 @@ def image() -> qemu_mcu.Path:
 
 def test_stm32_image_in_qemu_through_mcu_link(image: qemu_mcu.Path) -> None:
     spec = load_spec(None)
-    board_id = {v: k for k, v in spec.boards.items()}["stm32f405"]
 
     async def run(q: qemu_mcu.QemuMcu) -> None:
         duty = 0.25
@@ -63,17 +61,9 @@ def test_stm32_image_in_qemu_through_mcu_link(image: qemu_mcu.Path) -> None:
         async def drained() -> None:
             await mcu_exchange.drained(link, 60.0, lambda: q.load())
 
-        link = McuLink(replace(SETTINGS, port=q.port), on_state=exchange)
-        exchange.link = link
+        link = exchange.open_link(replace(SETTINGS, port=q.port))
         async with link:
-            ident = link.identity
-            assert ident is not None
-            assert (ident.board, ident.clock_hz, ident.proto_version) == (board_id, 168_000_000, spec.version)
-            reported = spec.boards[ident.board]
-            assert replace(SETTINGS, board="stm32f405").board_problem(reported) is None
-            assert "set mcu.board: stm32f405" in str(
-                replace(SETTINGS, board="atmega328p").board_problem(reported)
-            )
+            mcu_exchange.check_identity(link, spec, SETTINGS, "stm32f405", 168_000_000, "atmega328p")
             await drained()
 
             # 10 kHz: a state frame every control tick, the first 500 answered by a PWM frame each
@@ -98,34 +88,17 @@ def test_stm32_image_in_qemu_through_mcu_link(image: qemu_mcu.Path) -> None:
             assert q.load().laser
 
             # heartbeats stop: the board's watchdog cuts PWM and laser and says so
-            link.send_config(watchdog_ms=SETTINGS.watchdog_ms, state_div=0, max_on_ms=0)
-            await drained()
-            await link.stop_heartbeat()
-            await until(
-                lambda: list(link.faults),
-                30,
-                "watchdog_expired",
-                ok=lambda f: f and f[-1].name == "watchdog_expired",
-            )
-            assert link.faults[-1].detail == SETTINGS.watchdog_ms
-            cut = q.load()
-            assert (cut.pwm_duty, cut.laser) == (0, False)
-            # and refuses PWM until a heartbeat arms it again
-            link.send_pwm(duty)
-            await until(
-                lambda: list(link.refusals),
-                30,
-                "a refused pwm_set",
-                ok=lambda r: r and r[-1].name == "pwm_set",
-            )
-            assert "heartbeat" in link.refusals[-1].reason
-            assert q.load().pwm_duty == 0
-            await drained()  # arms it
-            link.start_heartbeat()
-            link.send_pwm(duty)
-            link.send_config(watchdog_ms=SETTINGS.watchdog_ms, state_div=0, max_on_ms=0)
-            await drained()
-            assert q.load().pwm_duty == want
+            async def outputs_cut() -> None:
+                cut = q.load()
+                assert (cut.pwm_duty, cut.laser) == (0, False)
+
+            async def pwm_on() -> None:
+                assert q.load().pwm_duty == want
+
+            await mcu_exchange.check_watchdog_cut(
+                link, SETTINGS, duty, state_div=0, timeout_s=30, drained=drained,
+                outputs_cut=outputs_cut, pwm_on=pwm_on,
+            )  # fmt: skip
 
         # the daemon's drive link refuses this board when the config names the ATmega
         cfg = load_config()

@@ -15,6 +15,7 @@ from typing import Any
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from rpc_helpers import Conn, run
 
 from tvsd.daemon.rpc import (
     DEVICE_ERROR,
@@ -68,53 +69,6 @@ METHODS: dict[str, Callable[..., Awaitable[object]]] = {
     "busy": busy,
     "boom": boom,
 }
-
-
-@pytest.fixture
-def sock_path(tmp_path: Path) -> Iterator[Path]:
-    """tmp_path, or a short directory when tmp_path would exceed the 107-byte limit of sun_path."""
-    if len(str(tmp_path)) < 90:
-        yield tmp_path / "tvsd.sock"
-        return
-    with tempfile.TemporaryDirectory(prefix="tvs") as short:
-        yield Path(short) / "tvsd.sock"
-
-
-def run(coro: Awaitable[None]) -> None:
-    async def bounded() -> None:
-        await asyncio.wait_for(coro, 10.0)
-
-    asyncio.run(bounded())
-
-
-class Conn:
-    """An asyncio client speaking raw lines."""
-
-    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self.reader, self.writer = reader, writer
-
-    @classmethod
-    async def open(cls, path: Path) -> Conn:
-        return cls(*await asyncio.open_unix_connection(str(path), limit=1 << 22))
-
-    async def send(self, raw: bytes) -> None:
-        self.writer.write(raw)
-        await self.writer.drain()
-
-    async def recv(self) -> Any:
-        line = await asyncio.wait_for(self.reader.readline(), 5.0)
-        assert line, "server closed the connection"
-        return json.loads(line)
-
-    async def call(self, method: str, params: Any = None, rid: Any = 1) -> Any:
-        req: dict[str, Any] = {"jsonrpc": "2.0", "id": rid, "method": method}
-        if params is not None:
-            req["params"] = params
-        await self.send(json.dumps(req).encode() + b"\n")
-        return await self.recv()
-
-    def close(self) -> None:
-        self.writer.close()
 
 
 async def serving(path: Path, **kwargs: Any) -> RpcServer:

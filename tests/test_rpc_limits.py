@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import asyncio
 import json
-import tempfile
 import time
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import Awaitable, Callable
 from pathlib import Path
-from typing import Any
 
 import pytest
 from conftest import until
+from rpc_helpers import Conn, run
 
 from tvsd.daemon.rpc import INVALID_PARAMS, INVALID_REQUEST, LIMIT_ERROR, Limits, RpcServer
 
@@ -53,47 +52,6 @@ METHODS: dict[str, Callable[..., Awaitable[object]]] = {
 }
 
 
-@pytest.fixture
-def sock_path(tmp_path: Path) -> Iterator[Path]:
-    if len(str(tmp_path)) < 90:
-        yield tmp_path / "tvsd.sock"
-        return
-    with tempfile.TemporaryDirectory(prefix="tvs") as short:
-        yield Path(short) / "tvsd.sock"
-
-
-def run(coro: Awaitable[None], timeout: float = 20.0) -> None:
-    async def bounded() -> None:
-        await asyncio.wait_for(coro, timeout)
-
-    asyncio.run(bounded())
-
-
-class Conn:
-    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        self.reader, self.writer = reader, writer
-
-    @classmethod
-    async def open(cls, path: Path) -> Conn:
-        return cls(*await asyncio.open_unix_connection(str(path), limit=1 << 24))
-
-    async def send(self, raw: bytes) -> None:
-        self.writer.write(raw)
-        await self.writer.drain()
-
-    async def recv(self, timeout: float = 10.0) -> Any:
-        line = await asyncio.wait_for(self.reader.readline(), timeout)
-        assert line, "server closed the connection"
-        return json.loads(line)
-
-    async def call(self, method: str, params: Any = None, rid: Any = 1) -> Any:
-        req: dict[str, Any] = {"jsonrpc": "2.0", "id": rid, "method": method}
-        if params is not None:
-            req["params"] = params
-        await self.send(json.dumps(req).encode() + b"\n")
-        return await self.recv()
-
-
 def _req(method: str, rid: int, **params: object) -> dict[str, object]:
     return {"jsonrpc": "2.0", "id": rid, "method": method, "params": params}
 
@@ -120,7 +78,7 @@ def test_out_of_range_numbers_are_invalid_params_not_internal_errors(
             assert words in reply["error"]["message"] and "parameter" in reply["error"]["message"], reply
             assert (await c.call("speed", {"rps": 25}, rid=2))["result"] == {"rps": 25.0}
 
-    run(body())
+    run(body(), timeout=20.0)
 
 
 @pytest.mark.parametrize("rid", [b"1e999", b"-1e999", b"9" * 30, b'"' + b"x" * 300 + b'"'])
@@ -133,7 +91,7 @@ def test_an_id_no_reply_could_carry_is_an_invalid_request(sock_path: Path, rid: 
             assert reply["id"] is None and reply["error"]["code"] == INVALID_REQUEST, reply
             assert '"id" must be' in reply["error"]["message"]
 
-    run(body())
+    run(body(), timeout=20.0)
 
 
 def test_a_batch_longer_than_the_limit_is_refused_whole_and_fast(sock_path: Path) -> None:
@@ -150,7 +108,7 @@ def test_a_batch_longer_than_the_limit_is_refused_whole_and_fast(sock_path: Path
             replies = await c.recv()
             assert [r["result"]["n"] for r in replies] == list(range(50))
 
-    run(body())
+    run(body(), timeout=20.0)
 
 
 def test_a_reply_larger_than_the_limit_becomes_an_error_naming_it(sock_path: Path) -> None:
@@ -167,7 +125,7 @@ def test_a_reply_larger_than_the_limit_becomes_an_error_naming_it(sock_path: Pat
             reply = await c.recv()
             assert reply["id"] is None and reply["error"]["code"] == LIMIT_ERROR
 
-    run(body())
+    run(body(), timeout=20.0)
 
 
 def test_a_batch_runs_at_most_max_concurrent_requests_at_once(sock_path: Path) -> None:
@@ -179,7 +137,7 @@ def test_a_batch_runs_at_most_max_concurrent_requests_at_once(sock_path: Path) -
             assert len(await c.recv()) == 20
         assert IN_FLIGHT["max"] == 4
 
-    run(body())
+    run(body(), timeout=20.0)
 
 
 def test_a_client_faster_than_its_rate_is_slowed_and_others_are_served(sock_path: Path) -> None:
@@ -200,7 +158,7 @@ def test_a_client_faster_than_its_rate_is_slowed_and_others_are_served(sock_path
             assert elapsed >= 0.95 * (150 - 50) / 50, elapsed
             assert server.stats["throttled"] > 0
 
-    run(body())
+    run(body(), timeout=20.0)
 
 
 def test_connections_beyond_max_clients_are_told_and_closed(sock_path: Path) -> None:
@@ -220,4 +178,4 @@ def test_connections_beyond_max_clients_are_told_and_closed(sock_path: Path) -> 
             d = await Conn.open(sock_path)
             assert (await d.call("count", {"n": 3}))["result"] == {"n": 3}
 
-    run(body())
+    run(body(), timeout=20.0)

@@ -14,6 +14,7 @@ from pathlib import Path
 import aiohttp
 import pytest
 from conftest import until
+from web_helpers import silent_browser
 
 from tvsd.config import WebSettings
 from tvsd.daemon.web.feed import decode_points
@@ -171,15 +172,7 @@ def test_a_browser_that_stops_reading_is_dropped_and_holds_a_bounded_buffer(tmp_
             view.point(_point(k))
         await view.start()
         try:
-            host, port = view.url.removeprefix("http://").rstrip("/").split(":")
-            raw = socket.socket()
-            raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-            raw.setblocking(False)
-            await asyncio.get_running_loop().sock_connect(raw, (host, int(port)))
-            raw.send(
-                b"GET /ws HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n"
-            )
+            raw = await silent_browser(view.url)
             await until(lambda: view.stats()["browsers"], 10, "the silent client connected")
             async with aiohttp.ClientSession(view.url) as http, http.ws_connect("/ws", max_msg_size=0) as ws:
                 await ws.receive(timeout=10)  # the reader's hello

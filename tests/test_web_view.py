@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import asyncio
 import re
-import socket
 import subprocess
 import sys
 import tempfile
@@ -22,6 +21,7 @@ import aiohttp
 import pytest
 from conftest import daemon_config, replace_section, wait_for
 from test_daemon import rpc, status
+from web_helpers import silent_browser
 
 from tvsd.daemon.web.server import HIGH_WATER
 
@@ -120,17 +120,9 @@ def test_a_browser_that_stops_reading_does_not_slow_the_daemon(live):
     answers its API and its control loop ticks on; the silent one is dropped after stall_s, and
     what the server held for it is bounded by the transport's high-water mark (64 KiB) and one frame."""
     sock, url, _ = live
-    host, port = url.removeprefix("http://").rstrip("/").split(":")
 
     async def main() -> tuple[list[float], dict, int, int]:
-        raw = socket.socket()
-        raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-        raw.setblocking(False)
-        await asyncio.get_running_loop().sock_connect(raw, (host, int(port)))
-        raw.send(
-            b"GET /ws HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-            b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n"
-        )
+        raw = await silent_browser(url)
         ticks0 = (await asyncio.to_thread(status, sock))["loop"]["ticks"]
         gaps: list[float] = []
         async with aiohttp.ClientSession(url) as http, http.ws_connect("/ws", max_msg_size=0) as ws:
