@@ -15,12 +15,11 @@ that falls behind wall time delays every frame.
 The exchange answers state frames with a pwm_set, but never two within 0.8 exchange periods of
 host time. Answering every one, as the daemon does, overflows the board when the host's event loop
 is late: it reads a batch of states and answers them back-to-back, and the ATmega's 64-byte RX
-ring (5 pwm_set frames; CRC-32 costs the CPU ~80 % at 2 kHz) overflows. Measured that way: 1 to 21
-of ~2070 host frames lost here alone, 58 to 393 with two busy loops beside it, and in a full
-`make test` run heartbeats lost in the ring (the board's watchdog expired mid-exchange) and the
-main loop more than 255 ticks behind (board_tick_pending is a uint8_t: 510 control ticks lost).
-Those are the board's limits under host bursts (a firmware matter), not the link's; this test
-checks the link: every loss seen by the board, none on the way back, the duty on the pin.
+ring (5 pwm_set frames; CRC-32 costs the CPU ~80 % at 2 kHz) overflows; a larger ring would hold
+the main loop past its 16-slot tick queue instead (control ticks lost). The board counts both
+(stats rx_overflows, ticks_dropped; firmware/sim/simavr_smoke.c floods it on purpose). Those are
+the board's limits under host bursts (a firmware matter), not the link's; this test checks the
+link: every loss seen by the board, none on the way back, the duty on the pin.
 """
 
 from __future__ import annotations
@@ -136,7 +135,8 @@ def test_atmega_image_in_simavr_through_mcu_link(image: simavr_mcu.Path) -> None
             lost = max(0, sent - mcu.rx_frames)
             print(f"pwm exchange: {answered} pwm_set, {lost} of {sent} host frames lost in RX: {mcu}")
             assert mcu.tx_dropped == 0, mcu
-            assert lost == 0 or mcu.crc_errors > 0, f"{lost} frames lost unseen by the board: {mcu}"
+            # each frame lost in the RX ring lost a byte there at least, and the board counted it
+            assert lost <= mcu.rx_overflows, f"{lost} frames lost unseen by the board: {mcu}"
             st = link.stats()
             assert st.crc_errors == 0 and st.lost_frames == 0 and st.nacks == 0, (st, list(link.refusals))
             link.send_laser(True)

@@ -13,6 +13,7 @@
 
 core_config_t core_cfg;
 volatile bool core_events;
+volatile uint16_t core_rx_overflows, core_ticks_dropped;
 frame_parser_t core_parser;
 static uint16_t state_count, stepper_count;
 static uint16_t reported_drops; /* tx_dropped when the last tx_overflow fault went out */
@@ -28,6 +29,9 @@ void core_init(void)
     outputs_reset();
     state_count = stepper_count = 0;
     reported_drops = 0;
+    uint8_t irq = board_irq_save();
+    core_rx_overflows = core_ticks_dropped = 0;
+    board_irq_restore(irq);
 }
 
 void core_fault(uint8_t code, uint16_t detail)
@@ -51,6 +55,10 @@ void core_stats(core_stats_t *s)
     s->resyncs = core_parser.resyncs;
     s->tx_dropped = frame_tx_dropped();
     s->duplicates = core_parser.duplicates;
+    uint8_t irq = board_irq_save(); /* ISR counters: a 16-bit read is two instructions on AVR */
+    s->rx_overflows = core_rx_overflows;
+    s->ticks_dropped = core_ticks_dropped;
+    board_irq_restore(irq);
 }
 
 static void send_state(uint32_t now, int32_t encoder)

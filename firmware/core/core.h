@@ -17,8 +17,14 @@ extern core_config_t core_cfg;
 
 typedef struct {
     uint32_t rx_frames;
-    uint16_t crc_errors, resyncs, tx_dropped, duplicates;
+    uint16_t crc_errors, resyncs, tx_dropped, duplicates, rx_overflows, ticks_dropped;
 } core_stats_t;
+
+/* Counted by the board's ISRs, reported in stats (modulo 65536, like the others): a received
+ * byte its RX ring had no room for (the frame check then throws the torn frame out and the parser
+ * resyncs), and a control tick its tick queue had no room for (the main loop was held up past the
+ * queue: the ticks beyond it are dropped, not replayed late, and the host sees a stamp gap). */
+extern volatile uint16_t core_rx_overflows, core_ticks_dropped;
 
 void core_init(void);
 /* Main context. */

@@ -21,6 +21,12 @@ static uint8_t enc_prev;
 board_tick_t board_tq[BOARD_TICK_QUEUE];
 volatile uint8_t board_tq_head, board_tq_tail;
 
+/* 64 B: 5 pwm_set frames of a host burst. Not larger, though RAM would allow it: the CPU is the
+ * limit (a pwm_set takes ~2200 cycles to parse, 1.4 control ticks), and a 128 B ring let the
+ * exchange's bursts hold the main loop past its 16-slot tick queue (tests/test_mcu_avr.py: ticks
+ * lost, 1 run in ~10), trading harmless lost pwm_sets (the next one replaces them) for lost
+ * control ticks. A byte without room is counted (core_rx_overflows), its torn frame fails the
+ * frame check and the parser resyncs. */
 #define RX_RING 64u
 static uint8_t rx_buf[RX_RING];
 volatile uint8_t board_rx_head, board_rx_tail;
@@ -208,6 +214,8 @@ ISR(TIMER1_COMPB_vect)
         slot->encoder = encoder;
         __asm__ volatile("" ::: "memory"); /* the slot before the index that publishes it */
         board_tq_head = (uint8_t)(h + 1u);
+    } else {
+        core_ticks_dropped++; /* the main loop is BOARD_TICK_QUEUE ticks behind: drop, not replay */
     }
     OCR1B = (uint16_t)(due + CORE_TICKS_PER_TICK);
 }
@@ -233,9 +241,11 @@ ISR(PCINT1_vect)
 ISR(USART_RX_vect)
 {
     uint8_t b = UDR0, h = board_rx_head;
-    if ((uint8_t)(h - board_rx_tail) < RX_RING) { /* else the byte is lost: the CRC catches it */
+    if ((uint8_t)(h - board_rx_tail) < RX_RING) {
         rx_buf[h & (RX_RING - 1u)] = b;
         board_rx_head = (uint8_t)(h + 1u);
+    } else {
+        core_rx_overflows++; /* the byte is lost: the frame check throws its frame out */
     }
 }
 

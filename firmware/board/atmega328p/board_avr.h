@@ -7,8 +7,10 @@
 /* Control ticks due, each with its own time and encoder count, queued by the Timer1 compare ISR:
  * when the main loop runs late by a tick or more (a burst of frames, a stepper_move's planning),
  * every tick still reports its own sample. Beyond BOARD_TICK_QUEUE behind, ticks are dropped (the
- * host sees a stamp gap). 8-bit indices: the AVR reads and writes each in one instruction, so
- * neither side needs cli(). Inline: the pop runs 10,000 times a second on a busy chip. */
+ * host sees a stamp gap; stats ticks_dropped counts them): a long stall costs at most 16 late
+ * ticks, never a replay of all it missed. 8-bit indices: the AVR reads and writes each in one
+ * instruction, so neither side needs cli(). Inline: the pop runs 10,000 times a second on a
+ * busy chip. */
 /* A full RX ring (64 B: 5 pwm_set, ~11 000 cycles to parse) holds the loop ~7 ticks, more with
  * the encoder's interrupts (the smoke test's burst: 6.6): 16 slots, 128 B of RAM. */
 #define BOARD_TICK_QUEUE 16u

@@ -21,8 +21,9 @@ int main(void)
     for (;;) {
         wdt_reset();
         /* Bounded work per pass: at most 16 received bytes, then one control tick. Under an
-         * input flood the RX ring overflows (counted as CRC errors) but the ticks, and with
-         * them the heartbeat watchdog, keep running; unbounded draining would starve them. */
+         * input flood the RX ring overflows (stats rx_overflows; the torn frames are CRC errors
+         * and resyncs) but the ticks, and with them the heartbeat watchdog, keep running;
+         * unbounded draining would starve them. */
         uint8_t b;
         for (uint8_t i = 0; i < 16u && board_rx_pop(&b); i++)
             core_rx_byte(b);

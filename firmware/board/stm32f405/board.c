@@ -43,7 +43,8 @@ static uint16_t enc_last;
 
 /* Control ticks due, each with its own time and encoder count: when the main loop runs late by
  * a tick or more (a stepper_move's planning, a burst of frames), every tick still reports its
- * own sample. Beyond TICK_QUEUE behind, ticks are dropped (the host sees a stamp gap). */
+ * own sample. Beyond TICK_QUEUE behind, ticks are dropped and counted (stats ticks_dropped; the
+ * host sees a stamp gap), never replayed. */
 #define TICK_QUEUE 8u
 static uint32_t tq_time[TICK_QUEUE];
 static int32_t tq_encoder[TICK_QUEUE];
@@ -209,6 +210,8 @@ void SysTick_Handler(void)
         tq_encoder[h % TICK_QUEUE] = e;
         __asm volatile("" ::: "memory"); /* the slot before the index that publishes it */
         tq_head = h + 1u;
+    } else {
+        core_ticks_dropped++; /* the main loop is TICK_QUEUE ticks behind: drop, not replay */
     }
 }
 
@@ -233,10 +236,14 @@ void USART1_IRQHandler(void)
     uint32_t sr = USART1->SR;
     if (sr & (USART_SR_RXNE | USART_SR_ORE)) { /* reading DR clears both; an overrun's byte is lost */
         uint8_t b = (uint8_t)USART1->DR;
+        if (sr & USART_SR_ORE)
+            core_rx_overflows++; /* the byte before this one never reached DR */
         uint32_t h = rx_head;
-        if (h - rx_tail < RX_RING) { /* else the byte is lost: the frame check catches it */
+        if (h - rx_tail < RX_RING) {
             rx_buf[h & (RX_RING - 1u)] = b;
             rx_head = h + 1u;
+        } else {
+            core_rx_overflows++; /* the byte is lost: the frame check throws its frame out */
         }
     }
     if ((USART1->CR1 & USART_CR1_TXEIE) && (sr & USART_SR_TXE)) {

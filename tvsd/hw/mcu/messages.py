@@ -83,6 +83,8 @@ class McuStats:
     resyncs: int
     tx_dropped: int
     duplicates: int  # repeated host frames the MCU dropped unexecuted
+    rx_overflows: int  # received bytes the board's RX ring had no room for (a host burst)
+    ticks_dropped: int  # control ticks the board's tick queue had no room for (a late main loop)
 
 
 def ack_meaning(status: int, spec: ProtocolSpec | None = None) -> str:
