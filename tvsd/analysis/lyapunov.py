@@ -236,11 +236,3 @@ def estimate(
     w = np.asarray(speed, dtype=float)
     flow = np.log(np.maximum(np.hypot(w, np.gradient(w, t)), 1e-300))
     return from_stretches(ell, h, lambda_sum, blocks=blocks, physical=physical, flow_log_norm=flow)
-
-
-def exponents(
-    model: ReducedModel, t: np.ndarray, speed: np.ndarray, phi: np.ndarray, effect: np.ndarray
-) -> tuple[float, float]:
-    """(λ1, λ1 + λ2) in 1/s along the given (φ, ω) trajectory (`estimate` has the interval)."""
-    est = estimate(model, t, speed, phi, effect)
-    return est.lambda1, est.lambda_sum
