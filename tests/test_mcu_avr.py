@@ -121,7 +121,11 @@ def test_atmega_image_in_simavr_through_mcu_link(image: simavr_mcu.Path) -> None
             )
             # one read of the pty per 10 ms at least, even on a loaded host: 100 answers per second
             assert answered >= 100, f"only {answered} of {EXCHANGES} states answered"
-            late, stalls = _lateness([s.mcu_ticks for s in states[-EXCHANGES:]])
+            try:
+                late, stalls = _lateness([s.mcu_ticks for s in states[-EXCHANGES:]])
+            except AssertionError as exc:  # dropped by the board (its counts) or on the way (the link's)?
+                mcu = await link.request_stats(timeout_s=10.0)
+                raise AssertionError(f"{exc}; board {mcu}; link {link.stats()}") from None
             print(f"state stamps: late by {dict(sorted(late.items()))} control ticks; {stalls} stall(s)")
             await drained()
             await until(
