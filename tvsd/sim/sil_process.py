@@ -43,12 +43,14 @@ WATCH_S = 0.2  # how often the main thread looks at the plant's thread between c
 @dataclass(frozen=True)
 class SilParams:
     """What the daemon hands the process: its config, the scene's β (the SA angle of the laser
-    spot, rad), whether the drive model runs (devices.mcu: sil), and the twins' rest limit."""
+    spot, rad), whether the drive model runs (devices.mcu: sil), the twins' rest limit (below
+    it they are still: tvsd.daemon.imu_service.STILL_RPS), the plant's history length."""
 
     cfg: Config
     beta: float
     plant: bool = True
     still_below_rps: float = 0.0
+    history_s: float = 10.0  # the plant's history ring (tests that read it over a long wait: more)
 
 
 def die_with_parent() -> None:
@@ -75,7 +77,7 @@ class Devices:
         self.plant: McuPlant | None = None
         clock: Clock = MonotonicClock()
         if p.plant:
-            plant = McuPlant(cfg, speed=1.0, record=False)
+            plant = McuPlant(cfg, speed=1.0, record=False, history_s=p.history_s)
             self.plant = plant
             plant.beta = p.beta
             for index in (0, 1):
