@@ -183,3 +183,23 @@ def test_a_crashed_devices_process_is_a_link_fault_and_an_imu_fault(sil_daemon) 
     assert any(f["cause"].startswith("IMU") for f in s["faults"]), s["faults"]
     assert "result" in rpc(sock, "shutdown")
     assert proc.wait(30) == 0
+
+
+@pytest.mark.slow
+def test_the_process_runs_this_tvsd_whatever_the_working_directory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A daemon started inside another checkout: `python -m` would import that tvsd first (it
+    did: /work/main's, without this module). The twins alone (devices.mcu hardware, imu sil) at
+    rest, read across the boundary."""
+    (tmp_path / "tvsd").mkdir()
+    (tmp_path / "tvsd" / "__init__.py").write_text("raise ImportError('the wrong tvsd')\n")
+    monkeypatch.chdir(tmp_path)
+    sil = SilDevices.spawn(SilParams(load_config(), 0.0, plant=False))
+    try:
+        sil.wait_ready()
+        assert sil.port == ""  # no MCU without the drive model
+        assert sil.imu_bus().read_byte_data(0x68, reg.WHO_AM_I) == 0x68
+    finally:
+        sil.close()
+    assert sil.proc.returncode == 0  # ended by its control socket's end, not killed

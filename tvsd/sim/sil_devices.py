@@ -29,6 +29,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -44,6 +45,14 @@ from tvsd.sim.sil_process import SilParams
 READY_TIMEOUT_S = 90.0
 STOP_TIMEOUT_S = 5.0
 ASK_TIMEOUT_S = 10.0
+
+
+def _own_path() -> str:
+    """PYTHONPATH with the directory this tvsd package is in first."""
+    import tvsd
+
+    here = str(Path(tvsd.__file__).resolve().parent.parent)
+    return os.pathsep.join([here, *filter(None, [os.environ.get("PYTHONPATH")])])
 
 
 class SilDevices:
@@ -65,7 +74,9 @@ class SilDevices:
         ctl_parent, ctl_child = socket.socketpair()
         bus_parent, bus_child = socket.socketpair()
         try:
-            argv = [sys.executable, "-m", "tvsd.sim.sil_process", "--ctl-fd", str(ctl_child.fileno())]
+            # -P and PYTHONPATH: this very tvsd, never one in the working directory (python -m
+            # would put it first: a daemon started inside another checkout ran that one's code)
+            argv = [sys.executable, "-P", "-m", "tvsd.sim.sil_process", "--ctl-fd", str(ctl_child.fileno())]
             argv += ["--bus-fd", str(bus_child.fileno()), *(["--realtime"] if realtime else [])]
             proc = subprocess.Popen(
                 argv,
@@ -73,7 +84,12 @@ class SilDevices:
                 stdout=subprocess.PIPE,
                 # OpenBLAS's worker threads spin-wait: beside SCHED_FIFO threads and CPU hogs they
                 # stall for 100s of ms; nothing in the devices needs a parallel BLAS
-                env={**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"},
+                env={
+                    **os.environ,
+                    "OPENBLAS_NUM_THREADS": "1",
+                    "OMP_NUM_THREADS": "1",
+                    "PYTHONPATH": _own_path(),
+                },
                 pass_fds=(ctl_child.fileno(), bus_child.fileno()),
             )
         except OSError as exc:
