@@ -19,6 +19,7 @@ import pytest
 from conftest import until
 from scipy.signal import csd, welch
 
+from tvsd.config import load_config
 from tvsd.daemon.imu_service import ImuService
 from tvsd.errors import DeviceError, UsageError
 from tvsd.hw import imu_calibration as cal
@@ -27,6 +28,8 @@ from tvsd.hw.mpu6050 import ImuSettings, angular_acceleration
 from tvsd.sim.imu_motion import GRAVITY, PlantMotion, SyntheticParams, synthetic_pair
 from tvsd.sim.mcu_plant import PlantHistory
 from tvsd.sim.mpu6050 import GYRO_NOISE_DPS_RTHZ
+from tvsd.sim.sil_devices import SilDevices
+from tvsd.sim.sil_process import SilParams
 
 
 def settings(tmp_path: Path, **kw: Any) -> ImuSettings:
@@ -295,9 +298,10 @@ def _gap_free(b: list[ImuBatch]) -> tuple[np.ndarray, np.ndarray]:
     return t[best], g[best]
 
 
-def test_the_sa_gyro_follows_the_running_plant(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_sa_gyro_follows_the_running_plant(tmp_path: Path) -> None:
     """The SA twin on PlantMotion of a paced McuPlant (config/sil.yaml: the paper's white Δv,
-    σv = 0.3381 rad/s^1.5): its angular acceleration against the plant's over the same instants.
+    σv = 0.3381 rad/s^1.5), both in the SIL devices' process, read by the driver here over the
+    process boundary: its angular acceleration against the plant's over the same instants.
 
     Truth: the plant's disturbance averaged over each IMU sample interval (its chunk means
     integrated, from the history ring). IMU: the Savitzky–Golay derivative of the SA gyro. Over
@@ -311,7 +315,6 @@ def test_the_sa_gyro_follows_the_running_plant(tmp_path: Path, monkeypatch: pyte
     # No host drives this plant's PWM, so its shaft is at rest; the SIL twins feel the vibration
     # only while the shaft turns (STILL_RPS, so that a SIL calibration at rest sees a still sensor:
     # tests/test_imu_sil_rest.py). This test is about following the plant's disturbance: gate off.
-    monkeypatch.setattr("tvsd.daemon.imu_service.STILL_RPS", 0.0)
     seen = Seen()
 
     def gap_free_s() -> float:
@@ -321,38 +324,43 @@ def test_the_sa_gyro_follows_the_running_plant(tmp_path: Path, monkeypatch: pyte
         t, _ = _gap_free(sa)
         return float(t[-1] - t[0])
 
-    # The twins share the cores (and the GIL) with this test: on a loaded machine the reader can
-    # fall behind the FIFO and lose samples, as a real one would. So wait for the outcome (2.5 s
-    # without a lost sample, of up to 50 s, all held by the plant's 60 s history ring), not a time.
-    with _plant(speed=1.0, history_s=60.0) as plant:
-        plant.start()
-        svc = ImuService(settings(tmp_path), "sil", plant=plant, on_batch=seen.batches.append)
+    # The plant and the twins run in the SIL devices' own process, as the daemon runs them, and
+    # the driver here reads them across the boundary (tvsd.hw.i2c_remote). They share the cores
+    # with this test: on a loaded machine the reader can fall behind the FIFO and lose samples, as
+    # a real one would. So wait for the outcome (2.5 s without a lost sample, of up to 50 s, all
+    # held by the plant's 60 s history ring), not a time.
+    sil = SilDevices.spawn(SilParams(load_config(), 0.5, still_below_rps=0.0, history_s=60.0))
+    try:
+        sil.wait_ready()
+        svc = ImuService(settings(tmp_path), "sil", plant=sil, on_batch=seen.batches.append)
 
         async def main() -> float:
             await svc.start()
             await until(
                 gap_free_s, ok=lambda s: s > 2.5, timeout=50.0, interval=0.2,
                 what="2.5 s of SA samples, none lost",
-            )
+            )  # fmt: skip
             rate = svc.status()["sensors"]["sa"]["rate_hz"]  # type: ignore[index]
             await svc.stop()
             return float(rate)
 
         fs = asyncio.run(main())
-        plant.stop()
-        h = plant.history()
-    sa = [b for b in seen.batches if b.sensor == "sa"]
-    t, gyro = _gap_free(sa)
+        h = sil.history()
+        sa = [b for b in seen.batches if b.sensor == "sa"]
+        t, gyro = _gap_free(sa)
+        s = sil.host_to_sim(t)
+    finally:
+        sil.close()
+    chunk_s = float(np.median(np.diff(h.t)))
     assert t[-1] - t[0] > 2.0, "under 2 s without a lost sample"
     keep = t > t[0] + 0.3  # the mounts' leak and the fit settle
-    t, gyro = t[keep], gyro[keep]
+    t, gyro, s = t[keep], gyro[keep], s[keep]
     # the ring holds the vibration as the model makes it: chunk means of white Δv, σv/√chunk
     dist = h.disturbance[(h.t > 0.5) & (h.t < h.t[-1])]
-    sigma = 0.3381 / math.sqrt(plant.chunk_s)
+    sigma = 0.3381 / math.sqrt(chunk_s)
     assert dist.std() == pytest.approx(sigma, rel=0.05)  # 3000 chunks: 1.3 % standard error
     alpha = angular_acceleration(gyro[:, 0], fs)[1:]
     cum = np.concatenate([[0.0], np.cumsum(h.disturbance[1:] * np.diff(h.t))])
-    s = plant.host_to_sim(t)
     truth = np.diff(np.interp(s, h.t, cum)) / np.diff(s)
     f, p_imu = welch(alpha, fs, nperseg=256)
     _, p_true = welch(truth, fs, nperseg=256)

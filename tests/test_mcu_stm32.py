@@ -107,7 +107,7 @@ def test_stm32_image_in_qemu_through_mcu_link(image: qemu_mcu.Path) -> None:
         with pytest.raises(
             DeviceError, match=r"reports board stm32f405 but mcu\.board is atmega328p: set mcu\.board"
         ):
-            await drive.start(0.0, 0.0)
+            await drive.start()
         assert drive.link is None
 
     mcu_exchange.run_on(qemu_mcu.QemuMcu(image, icount=True), run)

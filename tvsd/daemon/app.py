@@ -2,8 +2,9 @@
 
 Phase 1 (synchronous, `Daemon.__init__`): the control thread (tvsd.control.runner, the robust law
 in one 10 kHz kernel), the drive link (tvsd.daemon.drive_link: MCU on hardware or the SIL plant
-behind a virtual MCU), the IMU service (tvsd.daemon.imu_service), the JSON-RPC server's method
-table (tvsd.daemon.api), the CAN bridge, systemd notify.
+behind a virtual MCU, in the SIL devices' own process: tvsd.sim.sil_devices), the IMU service
+(tvsd.daemon.imu_service), the JSON-RPC server's method table (tvsd.daemon.api), the CAN bridge,
+systemd notify.
 Phase 2 (`Daemon.run`): the socket, the control thread, the drive link (required: a daemon that
 cannot reach its MCU exits with a clear message, status 3), then the optional parts — IMU, CAN —
 whose failure becomes a fault entry, not a dead daemon; then two asyncio tasks: `_drain` every
@@ -24,6 +25,7 @@ recording with a full-rate window of the control ticks before it, and published.
   frame that was. The firmware turns PWM and laser off on its own watchdog.
 - IMU lost: status `imu.state` = lost/degraded, scanning continues, points flagged no_imu.
 - Control loop overrun streak: safe state (PWM 0).
+- SIL devices' process ended: safe state (its MCU link and IMU twins are gone).
 Stop (SIGTERM, SIGINT, `shutdown`): speed reference to 0 along the ramp, wait for the shaft to
 stop (bounded), PWM 0 and laser off, recorder closed, socket removed, control thread stopped.
 """
@@ -96,6 +98,7 @@ class Daemon:
             on_fault=self._on_mcu_fault,
         )
         self.imu: Any = None  # tvsd.daemon.imu_service.ImuService once started
+        self.sil: Any = None  # tvsd.sim.sil_devices.SilDevices while any device is sil
         if cfg.devices.imu != "off":  # import now: at start-up it would stall the link's heartbeats
             import tvsd.daemon.imu_service  # noqa: F401
         self.notifier = Notifier()
@@ -154,7 +157,8 @@ class Daemon:
             # the IMU reader and the event loop past the 40 ms link timeout and 50 ms watchdog.
             gc.collect()
             gc.freeze()
-            await self.drive.start(*(math.radians(v) for v in self.aim_deg))
+            await self._start_sil()
+            await self.drive.start(self.sil)
             await self._start_optional()
             tasks.append(asyncio.create_task(self._initial_aim()))
             tasks += [asyncio.create_task(self._drain()), asyncio.create_task(self._heartbeat())]
@@ -169,12 +173,36 @@ class Daemon:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
 
+    async def _start_sil(self) -> None:
+        """The SIL devices' own process (the drive model behind the virtual MCU, the IMU twins),
+        when any device is sil; its end while running is a fault."""
+        devices = self.cfg.devices
+        if "sil" not in (devices.mcu, devices.imu):
+            return
+        from tvsd.daemon.drive_link import spot_beta
+        from tvsd.daemon.imu_service import STILL_RPS
+        from tvsd.sim.sil_devices import SilDevices
+        from tvsd.sim.sil_process import SilParams
+
+        phi, gamma = (math.radians(v) for v in self.aim_deg)
+        params = SilParams(self.cfg, spot_beta(self.cfg, phi, gamma), devices.mcu == "sil", STILL_RPS)
+        self.sil = await SilDevices.start(params, realtime=self.runner.realtime)
+        self.sil.watch(self._on_sil_exit)
+
+    def _on_sil_exit(self, why: str) -> None:
+        cause = f"SIL devices' process ended ({why}): the virtual MCU and the IMU twins are gone"
+        action = "safe state: PWM 0; restart tvsd --sil (its error is in the log)"
+        if self.state not in (S.FAULT, S.STOPPING):
+            self._enter_fault(FaultKind.MCU_LINK_LOST, cause, action)
+        else:
+            self._fault(FaultKind.MCU_LINK_LOST, cause, action)
+
     async def _start_optional(self) -> None:
         if self.cfg.devices.imu != "off":
             try:
                 from tvsd.daemon.imu_service import ImuService
 
-                imu = ImuService.for_daemon(self.cfg, self.cfg.devices.imu, self.drive.plant)
+                imu = ImuService.for_daemon(self.cfg, self.cfg.devices.imu, self.sil)
                 imu.on_state = self._on_imu_state
                 imu.on_batch = self._on_imu_batch
                 await imu.start()
@@ -227,6 +255,8 @@ class Daemon:
         await self.drive.close()  # PWM 0 and laser off on the wire
         if self.imu is not None:
             await self.imu.stop()
+        if self.sil is not None:  # after the link and the IMU reader let go of it
+            await self.sil.aclose()
         await self.stop_recording()
         await self.can.close()
         if self.web is not None:

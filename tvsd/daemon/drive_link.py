@@ -1,9 +1,10 @@
 """The drive as the daemon sees it: the MCU link, on hardware or on the SIL plant.
 
 Both backends speak the same bytes through the same McuLink (tvsd/hw/mcu/link.py): `hardware`
-opens the configured serial port; `sil` starts the drive model behind a virtual MCU on a pty
-(tvsd/sim/mcu_plant.py, paced at real time) and opens that pty. The daemon cannot tell them apart
-but for `inject` (SIL fault injection) and where the SIL scene puts the laser spot.
+opens the configured serial port; `sil` opens the pty of the virtual MCU that the SIL devices'
+process runs (tvsd/sim/sil_process.py: the drive model, tvsd/sim/mcu_plant.py, paced at real
+time, started by the daemon, tvsd.daemon.app). The daemon cannot tell them apart but for `inject`
+(SIL fault injection) and where the SIL scene puts the laser spot, both told to that process.
 
 Every state frame (cfg.mcu.exchange_hz) hands the control thread the encoder angle, a speed over
 the last SPEED_WINDOW_S of frames, the frame's arrival time and its sampling instant on the host's
@@ -28,7 +29,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,6 +39,9 @@ from tvsd.errors import ConfigError, DeviceError, UsageError
 from tvsd.hw.mcu.link import FaultEvent, McuLink, PulseEvent, StateSample
 from tvsd.hw.mcu.spec import CONTROL_TICK_HZ
 from tvsd.hw.mcu.steppers import Steppers
+
+if TYPE_CHECKING:
+    from tvsd.sim.sil_devices import SilDevices
 
 SPEED_WINDOW_S = 2e-3
 SENT_HISTORY_S = 0.8  # PWM frames kept, in s of exchanges (the point stream looks back < 0.5 s)
@@ -90,26 +94,22 @@ class DriveLink:
         self._sent = 0
         self._pwm_due = False  # a PWM frame is scheduled for the states read in this batch
         self.clock_hz = 16_000_000
-        self.plant: Any = None  # tvsd.sim.mcu_plant.McuPlant in SIL
+        self.sil: SilDevices | None = None  # SIL: the devices' process, running the virtual MCU
         self.link: McuLink | None = None
         self.steppers: Steppers | None = None
         self.last_state_host = math.nan
 
     # --- life cycle -----------------------------------------------------------------------------
-    async def start(self, phi: float, gamma: float) -> None:
-        """Open the link (SIL: start the plant first), identify, configure, home the axes."""
+    async def start(self, sil: SilDevices | None = None) -> None:
+        """Open the link (SIL: to the virtual MCU of `sil`, the running devices' process, whose
+        scene aims where the daemon starts), identify, configure, home the axes."""
         m = self.cfg.mcu
         port = m.port
         if self.backend == "sil":
-            from tvsd.sim.mcu_plant import McuPlant
-
-            self.plant = McuPlant(self.cfg, speed=1.0, record=False)
-            self.plant.beta = spot_beta(self.cfg, phi, gamma)
-            for index in (0, 1):
-                self.plant.mcu.set_limit(index, 0)  # the home switches, at step 0
-            self.plant.step()  # loads the plant kernel here, not as a GIL stall in its thread
-            self.plant.start()
-            port = self.plant.mcu.port
+            if sil is None or not sil.port:
+                raise DeviceError("devices.mcu is sil but the SIL devices' process runs no MCU")
+            self.sil = sil
+            port = sil.port
         link = McuLink(
             replace(m, port=port),
             on_state=self._on_state,
@@ -124,7 +124,6 @@ class DriveLink:
             await link.__aenter__()
         except BaseException:
             self.link = None
-            self._close_plant()
             raise
         assert link.identity is not None
         reported = link.spec.boards.get(link.identity.board, f"unknown ({link.identity.board})")
@@ -132,7 +131,6 @@ class DriveLink:
         if problem is not None:
             self.link = None
             await link.close()
-            self._close_plant()
             raise DeviceError(problem)
         self.clock_hz = link.identity.clock_hz
         link.send_config(watchdog_ms=m.watchdog_ms, state_div=self.state_div, max_on_ms=0)
@@ -149,12 +147,7 @@ class DriveLink:
             self.link.flush()
             await self.link.close()
             self.link = None
-        self._close_plant()
-
-    def _close_plant(self) -> None:
-        if self.plant is not None:
-            self.plant.close()
-            self.plant = None
+        self.sil = None  # its owner (tvsd.daemon.app) ends the process
 
     # --- the exchange (event-loop thread) --------------------------------------------------------
     def _on_state(self, s: StateSample) -> None:
@@ -242,16 +235,16 @@ class DriveLink:
                 raise UsageError(f"{a.name} is still moving: nothing moved; retry when it stops")
         self.steppers.move_to("phi", math.degrees(phi))
         self.steppers.move_to("gamma", math.degrees(gamma))
-        if self.plant is not None:
-            self.plant.beta = spot_beta(self.cfg, phi, gamma)
+        if self.sil is not None:
+            self.sil.set_beta(spot_beta(self.cfg, phi, gamma))
 
     def inject(self, fault: str) -> dict[str, Any]:
         """SIL fault injection: `link_loss` cuts the cable both ways, `link_restore` mends it."""
-        if self.plant is None:
+        if self.sil is None:
             raise UsageError("fault injection needs the SIL MCU (devices.mcu: sil, or tvsd --sil)")
         if fault not in SIL_FAULTS:
             raise UsageError(f"unknown MCU fault {fault!r}: use one of {', '.join(SIL_FAULTS)}")
-        self.plant.mcu.cable_cut = fault == "link_loss"
+        self.sil.cable_cut(fault == "link_loss")  # DeviceError if the process is gone
         return {"fault": fault, "t_mono": time.monotonic(), "last_state_mono": self.last_state_host}
 
     # --- status ---------------------------------------------------------------------------------
@@ -277,6 +270,7 @@ class DriveLink:
             "link_losses": st.link_losses,
             "rtt_p50_us": None if math.isnan(st.rtt_p50_s) else round(st.rtt_p50_s * 1e6, 1),
             "clock_drift_ppm": None if math.isnan(st.clock_drift_ppm) else round(st.clock_drift_ppm, 2),
+            **({"sil_pid": self.sil.pid} if self.sil is not None else {}),
             "steppers": axes,
         }
 

@@ -89,10 +89,12 @@ class ImuService:
         seed: int = 0,
         open_bus: Callable[[ImuSettings], SMBusLike] | None = None,
     ) -> None:
-        """SIL: `plant`, a running (paced) tvsd.sim.mcu_plant.McuPlant, moves the twins
-        (tvsd.sim.imu_motion.plant_pair on the SA axis, on its PlantClock); else `motions` per
-        sensor ("pl", "sa"); else at rest. `bus_timing`: SIL charges each transfer's bit time
-        at 400 kHz, as the real bus. `open_bus`: the hardware opener (tests)."""
+        """SIL: `plant`, the SIL devices' process (tvsd.sim.sil_devices.SilDevices: its twins,
+        over its bus, tvsd.hw.i2c_remote), or a running (paced) tvsd.sim.mcu_plant.McuPlant in
+        this process, moving twins here (tvsd.sim.imu_motion.plant_pair on the SA axis, on its
+        PlantClock); else `motions` per sensor ("pl", "sa"); else at rest. `bus_timing`: SIL
+        charges each transfer's bit time at 400 kHz, as the real bus. `open_bus`: the hardware
+        opener (tests)."""
         if backend not in BACKENDS:
             raise UsageError(f"IMU backend {backend!r}: one of {', '.join(BACKENDS)}")
         self.settings, self.backend = settings, backend
@@ -160,6 +162,10 @@ class ImuService:
         from tvsd.sim.imu_motion import PlantClock, SyntheticParams, plant_pair, synthetic_pair
         from tvsd.sim.mpu6050 import sil_pair
 
+        remote = getattr(self.plant, "imu_bus", None)
+        if remote is not None:  # the twins in the SIL devices' process, across its boundary
+            bus: SMBusLike = remote()
+            return bus
         twin_clock: Clock = self.clock
         motions = self.motions
         if self.plant is not None:
@@ -170,10 +176,10 @@ class ImuService:
             twin_clock = PlantClock(self.plant)
         elif motions is None:  # at rest: gravity, the twins' noise and biases
             motions = synthetic_pair(SyntheticParams(rps=0.0, imbalance_rad_s2=0.0, vibration_std_rad_s2=0.0))
-        bus, self.devices = sil_pair(
+        sim_bus, self.devices = sil_pair(
             self.settings, twin_clock, motions, bus_hz=400e3 if self.bus_timing else None, seed=self.seed
         )
-        return bus
+        return sim_bus
 
     def _load_calibration(self) -> dict[str, np.ndarray]:
         """The file's gyro biases; none (a warning, in status) if absent or damaged: the IMU
@@ -420,6 +426,11 @@ class ImuService:
             raise DeviceError("cannot inject an IMU fault: the IMU is not running")
         from tvsd.sim.mpu6050 import Fault, SimI2CBus
 
+        tell = getattr(self.plant, "imu_fault", None)
+        if tell is not None:  # the twins in the SIL devices' process: told, not waited for
+            tell(kind, None if sensor is None or kind != "loss" else self.settings.addresses[sensor])
+            self._injected = [*self._injected, kind] if kind == "loss" else []
+            return {"injected": kind, "sensor": sensor or "all", "faults": len(self._injected)}
         bus = self.bus
         assert isinstance(bus, SimI2CBus)
         if kind == "loss":

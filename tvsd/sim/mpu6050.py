@@ -1,7 +1,7 @@
 """Simulated MPU6050s on a simulated I2C bus: the driver's twin at the register level.
 
 SimI2CBus offers the smbus2.SMBus calls the driver makes (read_byte_data, write_byte_data,
-read_i2c_block_data, close) and fails the way the kernel does, with OSError(errno). Each
+read_i2c_block_data, i2c_rdwr, close) and fails the way the kernel does, with OSError(errno). Each
 SimMpu6050 keeps a register map and a 1024-byte FIFO filled, on every access, with the samples its
 own clock (nominal rate times 1 + rate_error: these oscillators run a few % off) produced since the
 last access. The time comes from a Clock: a ManualClock runs faster than real time (and the bus
@@ -22,11 +22,13 @@ and a wrong WHO_AM_I (the `who_am_i` argument).
 
 from __future__ import annotations
 
+import ctypes
 import errno
 import os
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.signal import butter, group_delay, sos2tf, sosfilt, sosfilt_zi
@@ -338,6 +340,42 @@ class SimI2CBus:
         if partial:
             self._raise(errno.EIO)
         return data
+
+    def transfer(self, msgs: list[tuple[int, bool, int, bytes]]) -> list[int]:
+        """A combined transfer (one I2C_RDWR ioctl): messages (addr, read, length, written
+        bytes), each pair [register] + read n one block read's transaction, [register, value] a
+        byte write. The read messages' bytes, in order; a failing message fails the whole, as
+        the kernel then copies nothing back (what the earlier reads popped is gone)."""
+        out: list[int] = []
+        i = 0
+        while i < len(msgs):
+            addr, read, n, data = msgs[i]
+            if not read and n == 2:
+                self.write_byte_data(addr, data[0], data[1])
+                i += 1
+            elif not read and n == 1 and i + 1 < len(msgs) and msgs[i + 1][1] and msgs[i + 1][0] == addr:
+                length = msgs[i + 1][2]
+                if not 0 < length <= reg.FIFO_SIZE:
+                    raise ValueError(f"read of {length} bytes")
+                partial = self._transaction(addr, length, data[0], write=False) == "partial"
+                out += self.devices[addr].read(data[0], length, partial=partial)
+                if partial:
+                    self._raise(errno.EIO)
+                i += 2
+            else:
+                raise ValueError("i2c_rdwr: only [register] + read and [register, value] messages")
+        return out
+
+    def i2c_rdwr(self, *msgs: Any) -> None:
+        """smbus2.SMBus.i2c_rdwr over the twins: smbus2.i2c_msg messages, read buffers filled."""
+        from tvsd.hw.i2c_remote import I2C_M_RD, rdwr_messages
+
+        data = bytes(self.transfer(rdwr_messages(msgs)))
+        at = 0
+        for m in msgs:
+            if m.flags & I2C_M_RD:
+                ctypes.memmove(m.buf, data[at : at + m.len], m.len)
+                at += m.len
 
     def close(self) -> None:
         self.closed = True
