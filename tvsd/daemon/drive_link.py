@@ -28,6 +28,7 @@ IO_THREAD_PRIORITY: below the control thread (80), above the event loop (40, tvs
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -94,6 +95,8 @@ class DriveLink:
         self._sent_volts = np.zeros(self._sent_n)
         self._sent = 0
         self._pwm_due = False  # a state came in the batch being handled: answer it with a PWM frame
+        self._answering = True  # False once closing: PWM 0 is the last duty sent
+        self._pwm_lock = threading.Lock()
         self.clock_hz = 16_000_000
         self.plant: Any = None  # tvsd.sim.mcu_plant.McuPlant in SIL
         self.link: McuLink | None = None
@@ -153,7 +156,9 @@ class DriveLink:
     async def close(self) -> None:
         """PWM 0 and laser off on the wire (the firmware's watchdog would do it too), then close."""
         if self.link is not None:
-            self.link.send_pwm(0.0)
+            with self._pwm_lock:  # the I/O thread sends no duty after this 0
+                self._answering = False
+                self.link.send_pwm(0.0)
             self.link.send_laser(False)
             self.link.flush()
             await self.link.close()
@@ -187,14 +192,17 @@ class DriveLink:
         several states at once, and answering each would burst frames into the MCU's receive
         buffer (the ATmega's holds ~5: heartbeats were lost, and its watchdog cut, in simavr
         under load, tests/test_mcu_avr.py's finding)."""
-        if not self._pwm_due or self.link is None:
+        link = self.link
+        if not self._pwm_due or link is None:
             return
         self._pwm_due = False
         duty = max(-1.0, min(1.0, self.runner.command * self.duty_per_volt))
-        if self.link.send_pwm(duty):
-            i = self._sent % self._sent_n
-            self._sent_host[i], self._sent_volts[i] = time.monotonic(), duty / self.duty_per_volt
-            self._sent += 1
+        with self._pwm_lock:
+            if not self._answering or not link.send_pwm(duty):
+                return
+        i = self._sent % self._sent_n
+        self._sent_host[i], self._sent_volts[i] = time.monotonic(), duty / self.duty_per_volt
+        self._sent += 1
 
     def sent_volts(self, t_mcu: np.ndarray) -> np.ndarray:
         """The motor voltage commanded at MCU times: each PWM frame's from when it was sent (its
