@@ -49,6 +49,12 @@ def _loop() -> dict[str, Any]:
     return bench_loop()
 
 
+def _mcu_io() -> dict[str, Any]:
+    from tvsd.hw.mcu.io_bench import bench_io_thread
+
+    return bench_io_thread()
+
+
 def _mcu_sil() -> dict[str, Any]:
     from tvsd.sim.mcu_plant import bench_clock_sync
 
@@ -85,6 +91,7 @@ BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "scan": _scan,
     "imu": _imu,
     "mcu": _mcu,
+    "mcu_io": _mcu_io,
     "mcu_sil": _mcu_sil,
     "mcu_stm32": _mcu_stm32,
     "fuzz": _fuzz,

@@ -10,22 +10,26 @@ Every state frame (cfg.mcu.exchange_hz) hands the control thread the encoder ang
 the last SPEED_WINDOW_S of frames, the frame's arrival time and its sampling instant on the host's
 clock (the law carries the angle forward from there). 2 ms: one frame apart, the 8192-count
 encoder would quantise 25 rev/s to 1.2 % (2 ms: 0.24 %, for 1 ms of delay, nothing against the
-drive's 2.4 s time constant). Then it sends the control thread's latest command as the PWM duty,
-and keeps what it sent (`sent_volts`: the command the motor really got, held between frames, for
-the point stream's drive model). So the exchange with the MCU runs at the state rate (2 kHz on
-the ATmega328P, 10 kHz on the STM32F405: cfg.mcu.board), one control tick (0.1 ms) behind at
-most, and the 10 kHz kernel never waits for it.
+drive's 2.4 s time constant). All of it on the link's I/O thread (tvsd/hw/mcu/io_thread.py), never
+the event loop: after each batch of states read together it sends the control thread's latest
+command as the PWM duty, and keeps what it sent (`sent_volts`: the command the motor really got,
+held between frames, for the point stream's drive model). So the exchange with the MCU runs at
+the state rate (2 kHz on the ATmega328P, 10 kHz on the STM32F405: cfg.mcu.board), one control
+tick (0.1 ms) behind at most, and the 10 kHz kernel never waits for it.
 
 Safety, in three layers: the control thread holds PWM 0 once the newest state frame is older than
 cfg.mcu.link_timeout_ms (40 ms: tvsd.control.runner, LoopFault.STALE); the link reports the loss
 after cfg.mcu.link_lost_ms (50 ms) without any frame (on_link(False)); the firmware cuts PWM and
-laser watchdog_ms after the last heartbeat (heartbeats go every watchdog_ms / 4).
+laser watchdog_ms after the last heartbeat. Heartbeats go every watchdog_ms / 4 from the link's
+I/O thread, and only while the control kernel's tick count moves (`liveness`): a dead control
+loop means no heartbeat, and the firmware cuts. Under --realtime that thread runs SCHED_FIFO
+IO_THREAD_PRIORITY: below the control thread (80), above the event loop (40, tvsd.daemon.main).
 """
 
 from __future__ import annotations
 
-import asyncio
 import math
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -45,8 +49,10 @@ if TYPE_CHECKING:
 
 SPEED_WINDOW_S = 2e-3
 SENT_HISTORY_S = 0.8  # PWM frames kept, in s of exchanges (the point stream looks back < 0.5 s)
+SENT_SLACK = 64  # of them not read back: the I/O thread may be overwriting them meanwhile
 SIL_TARGET_RANGE_M = 2.0  # the SIL scene: a surface 2 m from the PL (tvsd/sim/scene.py)
 SIL_FAULTS = ("link_loss", "link_restore")
+IO_THREAD_PRIORITY = 60  # SCHED_FIFO of the link's I/O thread under --realtime
 
 
 def spot_beta(cfg: Config, phi: float, gamma: float) -> float:
@@ -92,7 +98,9 @@ class DriveLink:
         self._sent_host = np.zeros(self._sent_n)  # ring of the PWM frames sent: host time, volts
         self._sent_volts = np.zeros(self._sent_n)
         self._sent = 0
-        self._pwm_due = False  # a PWM frame is scheduled for the states read in this batch
+        self._pwm_due = False  # a state came in the batch being handled: answer it with a PWM frame
+        self._answering = True  # False once closing: PWM 0 is the last duty sent
+        self._pwm_lock = threading.Lock()
         self.clock_hz = 16_000_000
         self.sil: SilDevices | None = None  # SIL: the devices' process, running the virtual MCU
         self.link: McuLink | None = None
@@ -113,11 +121,15 @@ class DriveLink:
         link = McuLink(
             replace(m, port=port),
             on_state=self._on_state,
+            on_batch=self._send_pwm,
             on_pulse=self.on_pulse,
             on_fault=self.on_fault,
             on_link=self.on_link,
             on_stepper=self._on_stepper,
             on_refused=self._on_refused,
+            liveness=lambda: self.runner.ticks,
+            # (getattr: a board check in the tests runs without a runner)
+            io_priority=IO_THREAD_PRIORITY if getattr(self.runner, "realtime", False) else None,
         )
         self.link = link  # state frames may come during the handshake
         try:
@@ -142,14 +154,16 @@ class DriveLink:
     async def close(self) -> None:
         """PWM 0 and laser off on the wire (the firmware's watchdog would do it too), then close."""
         if self.link is not None:
-            self.link.send_pwm(0.0)
+            with self._pwm_lock:  # the I/O thread sends no duty after this 0
+                self._answering = False
+                self.link.send_pwm(0.0)
             self.link.send_laser(False)
             self.link.flush()
             await self.link.close()
             self.link = None
         self.sil = None  # its owner (tvsd.daemon.app) ends the process
 
-    # --- the exchange (event-loop thread) --------------------------------------------------------
+    # --- the exchange (the link's I/O thread: the measurement's one writer) ------------------------
     def _on_state(self, s: StateSample) -> None:
         i = self._frames % len(self._ticks)
         phi = s.encoder * self.rad_per_count
@@ -164,29 +178,31 @@ class DriveLink:
         sample_ns = round(sampled * 1e9) if math.isfinite(sampled) else None
         self.runner.measured(phi, omega, round(s.host_time * 1e9), sample_ns)
         self.last_state_host = s.host_time
-        if self.link is not None and not self._pwm_due:
-            # One PWM frame per batch of states read together, sent once the batch is placed: a
-            # late event loop reads several states at once, and answering each would burst frames
-            # into the MCU's receive buffer (the ATmega's holds ~5: heartbeats were lost, and its
-            # watchdog cut, in simavr under load, tests/test_mcu_avr.py's finding).
-            self._pwm_due = True
-            asyncio.get_running_loop().call_soon(self._send_pwm)
+        self._pwm_due = True
 
     def _send_pwm(self) -> None:
-        self._pwm_due = False
-        if self.link is None:
+        """After a batch of states (on_batch): one PWM frame for all of them. A late thread reads
+        several states at once, and answering each would burst frames into the MCU's receive
+        buffer (the ATmega's holds ~5: heartbeats were lost, and its watchdog cut, in simavr
+        under load, tests/test_mcu_avr.py's finding)."""
+        link = self.link
+        if not self._pwm_due or link is None:
             return
+        self._pwm_due = False
         duty = max(-1.0, min(1.0, self.runner.command * self.duty_per_volt))
-        if self.link.send_pwm(duty):
-            i = self._sent % self._sent_n
-            self._sent_host[i], self._sent_volts[i] = time.monotonic(), duty / self.duty_per_volt
-            self._sent += 1
+        with self._pwm_lock:
+            if not self._answering or not link.send_pwm(duty):
+                return
+        i = self._sent % self._sent_n
+        self._sent_host[i], self._sent_volts[i] = time.monotonic(), duty / self.duty_per_volt
+        self._sent += 1
 
     def sent_volts(self, t_mcu: np.ndarray) -> np.ndarray:
         """The motor voltage commanded at MCU times: each PWM frame's from when it was sent (its
         ~0.1 ms on the line and in the MCU's parser not counted) until the next; 0 before the
         first kept, and before the clock sync."""
-        n = min(self._sent, self._sent_n)
+        # the I/O thread writes on: leave it the oldest rows (a row is written before the count)
+        n = min(self._sent, self._sent_n - SENT_SLACK)
         out = np.zeros(len(t_mcu))
         if n == 0:
             return out
@@ -270,6 +286,12 @@ class DriveLink:
             "link_losses": st.link_losses,
             "rtt_p50_us": None if math.isnan(st.rtt_p50_s) else round(st.rtt_p50_s * 1e6, 1),
             "clock_drift_ppm": None if math.isnan(st.clock_drift_ppm) else round(st.clock_drift_ppm, 2),
+            # the I/O thread's heartbeats: the firmware cuts after mcu.watchdog_ms without one
+            "heartbeat_gap_max_ms": round(st.heartbeat_gap_max_s * 1e3, 2),
+            "heartbeat_late_max_ms": round(st.heartbeat_late_max_s * 1e3, 2),
+            "heartbeats_withheld": st.heartbeats_withheld,  # the control loop had not ticked
+            "events_dropped": st.events_dropped,
+            "io_thread_fifo": self.link.io_realtime,
             **({"sil_pid": self.sil.pid} if self.sil is not None else {}),
             "steppers": axes,
         }

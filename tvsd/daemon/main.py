@@ -86,6 +86,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if problem is not None:
             print(f"tvsd: {problem}", file=sys.stderr)
             return EXIT_USAGE
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     try:
         return asyncio.run(_serve(args, cfg, config_path.read_text(encoding="utf-8")))
     except TvsdError as exc:
@@ -120,14 +121,19 @@ def _make_dir(folder: Path, option: str) -> str | None:
 
 
 IO_PRIORITY = 40  # SCHED_FIFO of the event loop and the threads it starts; the control thread: 80
+# The GIL's hand-over interval. The MCU link's I/O thread (the heartbeat, the state frames) waits
+# up to this for the GIL whenever another thread runs Python; the default 5 ms is a tenth of the
+# firmware's 50 ms watchdog, 1 ms a fiftieth (`tvsctl bench --only mcu_io`: README).
+SWITCH_INTERVAL_S = 0.001
 
 
 def _io_side_realtime() -> None:
-    """--realtime: the event loop (heartbeats, MCU frames, the API) and the threads started after
-    it (IMU reader, recorder, SIL devices: new threads inherit the policy) on SCHED_FIFO below the
-    control thread, so that normal-priority load (a browser, a compile, CPU hogs) cannot hold the
-    safety path's I/O off the CPU past the firmware's watchdog. The kernel's RT throttling
-    (sched_rt_runtime_us) still leaves normal tasks 5 % of each CPU."""
+    """--realtime: the event loop (the API, recordings, points) and the threads started after it
+    (IMU reader, recorder, SIL devices: new threads inherit the policy) on SCHED_FIFO below the
+    control thread, so that normal-priority load (a browser, a compile, CPU hogs) cannot hold
+    them off the CPU while they hold the GIL. The MCU link's I/O thread (heartbeats, state
+    frames) asks for its own priority, above this one (tvsd.daemon.drive_link). The kernel's RT
+    throttling (sched_rt_runtime_us) still leaves normal tasks 5 % of each CPU."""
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(IO_PRIORITY))
         print(f"tvsd: event loop, I/O threads SCHED_FIFO granted (priority {IO_PRIORITY})", file=sys.stderr)

@@ -52,6 +52,16 @@ class ClockFit:
     held: int
 
 
+def _line_fit(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Least-squares slope and intercept in closed form. Not np.polyfit: its LAPACK call may go
+    to OpenBLAS's worker threads, which spin-wait, and it runs on the link's I/O thread (SCHED_FIFO
+    under --realtime) at every heartbeat ack."""
+    xm, ym = float(x.mean()), float(y.mean())
+    dx = x - xm
+    b = float(np.dot(dx, y - ym) / np.dot(dx, dx))
+    return b, ym - b * xm
+
+
 class ClockSync:
     """Map unwrapped MCU ticks to host time (the clock of ``time.monotonic``)."""
 
@@ -62,10 +72,10 @@ class ClockSync:
         self.settings = settings or ClockSettings()
         self._samples: deque[tuple[int, float, float]] = deque(maxlen=self.settings.window)
         self.fit_: ClockFit | None = None
-        # to_host() runs per event: keep its coefficients as plain floats
-        self._x_ref = 0
-        self._y_ref = 0.0
-        self._b = 1.0 / self.clock_hz
+        # to_host() runs per event: its coefficients as plain numbers, in one tuple (x_ref, y_ref,
+        # b) replaced whole, so a reader on another thread (the link's I/O thread refits) never
+        # mixes two fits
+        self._coef: tuple[int, float, float] = (0, 0.0, 1.0 / self.clock_hz)
 
     @property
     def ready(self) -> bool:
@@ -93,7 +103,7 @@ class ClockSync:
         a = 0.0
         for _ in range(2):
             if keep.sum() >= 2 and np.ptp(x[keep]) > 0:
-                b, a = np.polyfit(x[keep], y[keep], 1)
+                b, a = _line_fit(x[keep], y[keep])
             else:  # one sample: nominal rate through it
                 a = float(np.mean(y[keep] - b * x[keep]))
             res = y - (a + b * x)
@@ -105,11 +115,12 @@ class ClockSync:
                 break
             keep = new_keep
         res = y[keep] - (a + b * x[keep])
-        self._x_ref, self._y_ref, self._b = x_ref, y_ref + float(a), float(b)
+        y0, b = y_ref + float(a), float(b)
+        self._coef = (x_ref, y0, b)
         self.fit_ = ClockFit(
-            offset_s=self._y_ref - self._b * x_ref,
-            seconds_per_tick=self._b,
-            drift_ppm=(1.0 / (self._b * self.clock_hz) - 1.0) * 1e6,
+            offset_s=y0 - b * x_ref,
+            seconds_per_tick=b,
+            drift_ppm=(1.0 / (b * self.clock_hz) - 1.0) * 1e6,
             residual_us=float(np.sqrt(np.mean(res**2))) * 1e6,
             used=int(keep.sum()),
             held=len(self._samples),
@@ -119,13 +130,15 @@ class ClockSync:
         """The MCU tick count at a host time (the inverse of to_host); needs a fit."""
         if self.fit_ is None:
             raise ValueError("no clock fit yet: no heartbeat round trip")
-        return self._x_ref + round((host_s - self._y_ref) / self._b)
+        x_ref, y_ref, b = self._coef
+        return x_ref + round((host_s - y_ref) / b)
 
     def to_host(self, mcu_ticks: int) -> float:
         """Host time (s) of an MCU tick count (unwrapped). Before any sample: NaN."""
         if self.fit_ is None:
             return float("nan")
-        return self._y_ref + self._b * (mcu_ticks - self._x_ref)
+        x_ref, y_ref, b = self._coef
+        return y_ref + b * (mcu_ticks - x_ref)
 
 
 def warm_up(clock_hz: float = 16e6) -> None:

@@ -1,0 +1,179 @@
+"""The safety path off the event loop (issue 13, item 1): the MCU link's I/O thread against the
+firmware core itself (the virtual MCU on a pty), its heartbeat tied to the real control kernel's
+tick count.
+
+A live control loop means a live heartbeat: the event loop blocked for twice the firmware's
+watchdog (sleeping, or busy in pure Python and so holding the GIL but for the interpreter's
+switch interval) starves neither the heartbeat nor the state frames. A dead one means the
+firmware cuts within its watchdog: the kernel stopped, the I/O thread withholds the heartbeat.
+The shipped fail-safe times are used (watchdog 50 ms, link loss 50 ms, states every 1 ms).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Iterator
+
+import pytest
+from conftest import until
+
+from tvsd.control.runner import Runner
+from tvsd.hw.mcu.link import FaultEvent, McuLink, McuSettings, StateSample
+from tvsd.hw.mcu.receiving import EVENT_QUEUE, Receiver
+from tvsd.hw.mcu.spec import load_spec
+from tvsd.sim import virtual_mcu as vm
+
+WATCHDOG_MS = 50
+LINK_TIMEOUT_S = 0.040  # the control thread's stale limit (mcu.link_timeout_ms)
+STATE_DIV = 10  # a state frame every 1 ms
+
+
+@pytest.fixture
+def vmcu() -> Iterator[vm.VirtualMcu]:
+    try:
+        v = vm.VirtualMcu()
+    except vm.VirtualMcuError as exc:
+        pytest.skip(f"virtual MCU unavailable: {exc}")
+    with v:
+        yield v
+
+
+@pytest.fixture
+def runner(setup: object) -> Iterator[Runner]:
+    r = Runner(setup, sil=False)  # type: ignore[arg-type]
+    r.start()
+    try:
+        yield r
+    finally:
+        r.stop(timeout=2.0)
+
+
+class Seen:
+    def __init__(self) -> None:
+        self.states: list[float] = []  # arrival, time.monotonic() on the I/O thread
+        self.faults: list[FaultEvent] = []
+        self.links: list[bool] = []
+
+    def state(self, s: StateSample) -> None:
+        self.states.append(time.monotonic())
+
+    def watchdog_cuts(self) -> list[FaultEvent]:
+        return [f for f in self.faults if f.name == "watchdog_expired"]
+
+
+async def connect(vmcu: vm.VirtualMcu, runner: Runner, seen: Seen) -> McuLink:
+    await until(lambda: runner.is_running, 60.0, "the control kernel running")
+    settings = McuSettings(port=vmcu.port, watchdog_ms=WATCHDOG_MS, link_lost_ms=50.0)
+    link = McuLink(
+        settings,
+        on_state=seen.state,
+        on_fault=seen.faults.append,
+        on_link=seen.links.append,
+        liveness=lambda: runner.ticks,
+    )
+    await link.__aenter__()
+    link.send_config(watchdog_ms=WATCHDOG_MS, state_div=STATE_DIV, max_on_ms=0)
+    await link.ping()  # the config is applied
+    return link
+
+
+@pytest.mark.parametrize("block", ["sleep", "busy"])
+def test_a_blocked_event_loop_starves_neither_heartbeat_nor_states(
+    vmcu: vm.VirtualMcu, runner: Runner, block: str
+) -> None:
+    """The loop blocked 2 × watchdog_ms. Heartbeats are due every watchdog_ms / 4 (12.5 ms): the
+    longest gap between two must stay under the watchdog, and the firmware must report no expiry;
+    states must reach the measurement less than the control thread's 40 ms stale limit apart,
+    and the link must not be called lost. (On the event loop, as before, the whole block went
+    without a heartbeat or a state: an expiry and a loss each time.)"""
+
+    async def main() -> None:
+        seen = Seen()
+        link = await connect(vmcu, runner, seen)
+        try:
+            await asyncio.sleep(0.2)
+            link.reset_peaks()  # the block's, not the start-up's
+            t0 = time.monotonic()
+            t1 = t0 + 2 * WATCHDOG_MS / 1e3
+            if block == "sleep":
+                time.sleep(t1 - t0)
+            else:  # pure Python: the GIL is handed over only at the switch interval
+                while time.monotonic() < t1:
+                    pass
+            await asyncio.sleep(0.1)  # what the firmware says of the block reaches us
+            st = link.stats()
+        finally:
+            await link.close()
+        during = [t for t in seen.states if t0 <= t <= t1]
+        gaps = [b - a for a, b in zip([t0, *during], [*during, t1], strict=True)]
+        print(
+            f"{block}: heartbeat gap max {st.heartbeat_gap_max_s * 1e3:.1f} ms, late max "
+            f"{st.heartbeat_late_max_s * 1e3:.1f} ms; {len(during)} states in the block, longest "
+            f"gap {max(gaps) * 1e3:.1f} ms"
+        )
+        assert not seen.watchdog_cuts(), seen.faults
+        assert st.heartbeat_gap_max_s < WATCHDOG_MS / 1e3, st
+        assert st.link_losses == 0 and False not in seen.links
+        assert max(gaps) < LINK_TIMEOUT_S, gaps
+
+    asyncio.run(main())
+
+
+def test_a_stopped_kernel_stops_the_heartbeat_and_the_firmware_cuts(
+    vmcu: vm.VirtualMcu, runner: Runner
+) -> None:
+    """The kernel stops: the heartbeat that was due when it last ticked may still go (one period
+    plus the I/O thread's own lateness after the stop), none after. The firmware then cuts PWM
+    and laser watchdog_ms after that last heartbeat: not sooner, and later by no more than 25 ms
+    (the virtual MCU's pump wakes every 1 ms, the fault frame crosses the pty and wakes the I/O
+    thread: two thread wake-ups on a loaded 2-core machine). The kernel back, heartbeats resume."""
+
+    async def main() -> None:
+        seen = Seen()
+        link = await connect(vmcu, runner, seen)
+        try:
+            assert link.send_pwm(0.3)
+            await until(lambda: vmcu.pwm_duty > 0.25, 2.0, "the firmware taking the duty")
+            runner.stop(timeout=2.0)
+            t_stop = time.monotonic()
+            await until(seen.watchdog_cuts, 2.0, "the firmware's watchdog expiry")
+            st = link.stats()
+            cut = seen.watchdog_cuts()[0]
+            period = link.settings.heartbeat_period_s
+            assert st.heartbeats_withheld > 0
+            assert st.last_heartbeat_s <= t_stop + period + st.heartbeat_late_max_s, st
+            after_s = cut.host_time - st.last_heartbeat_s
+            print(f"firmware cut {after_s * 1e3:.1f} ms after the last heartbeat (watchdog {WATCHDOG_MS} ms)")
+            assert WATCHDOG_MS / 1e3 <= after_s <= WATCHDOG_MS / 1e3 + 0.025
+            assert cut.detail == WATCHDOG_MS and vmcu.pwm_duty == 0.0
+            sent = st.heartbeats
+            runner.start()
+            await until(lambda: link.stats().heartbeats > sent + 2, 5.0, "heartbeats again")
+        finally:
+            await link.close()
+
+    asyncio.run(main())
+
+
+def test_a_full_event_queue_drops_and_counts_but_keeps_link_changes() -> None:
+    """The I/O thread never waits for the loop: past EVENT_QUEUE waiting events a new one is
+    refused and counted; a link change always goes in; the loop is woken once for all of them."""
+    from tvsd.hw.mcu.events import LinkStats
+    from tvsd.hw.mcu.messages import Pulse
+
+    loop = asyncio.new_event_loop()
+    try:
+        stats = LinkStats()
+        got: list[object] = []
+        rx = Receiver(load_spec(), stats, [None] * 0x1_0000, 8, on_pulse=got.append, on_link=got.append)
+        rx.attach(loop)  # not running: nothing is drained while we post
+        for seq in range(EVENT_QUEUE + 10):
+            rx._on_pulse(Pulse(0, seq & 0xFFFF, seq), 0.0)
+        rx.on_link_change(False)
+        assert stats.events_dropped == 10
+        assert len(loop._ready) == 1  # type: ignore[attr-defined]  # one wake-up, not 4106
+        loop.run_until_complete(asyncio.sleep(0))
+        assert len(got) == EVENT_QUEUE + 1 and got[-1] is False
+    finally:
+        loop.close()
