@@ -28,131 +28,37 @@ daemon spins up (before the load) are cleared, the speed asked again, and report
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from tvsd.daemon.soak_load import (
+    BATCH_CALLS,
+    Load,
+    batch,
+    die_with_parent,
+    export,
+    floor_probe,
+    hammer,
+    start_hogs,
+)
 from tvsd.daemon.state import DaemonState
 from tvsd.errors import DeviceError
 from tvsd.rpc.client import RpcClient
 
 RPS = 25.0
 CLIENTS = 50
-BATCH_CALLS = 500
 BATCH_EVERY_S = 3.0
 RECORD_EVERY_S = 60.0
 P99_OVER_FLOOR = 1.1  # the target
 START_TIMEOUT_S = 120.0
-HOG = "while True: pass"
-PR_SET_PDEATHSIG = 1
-
-
-def _die_with_parent(sig: int) -> Callable[[], None]:
-    """preexec_fn: the child gets `sig` when this process dies (a SIGKILLed soak leaves no hog)."""
-
-    def setup() -> None:
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, sig)
-
-    return setup
-
-
-@dataclass
-class Load:
-    """What the clients saw, filled by their threads."""
-
-    stop: threading.Event = field(default_factory=threading.Event)
-    lock: threading.Lock = field(default_factory=threading.Lock)
-    status_calls: int = 0
-    client_errors: dict[str, int] = field(default_factory=dict)
-    batches: int = 0
-    batch_answers: dict[str, int] = field(default_factory=dict)  # error code or "reply"
-    batch_reply_bytes_max: int = 0
-    batch_reply_s_max: float = 0.0
-
-    def error(self, what: str) -> None:
-        with self.lock:
-            self.client_errors[what] = self.client_errors.get(what, 0) + 1
-
-
-def _hammer(sock: Path, load: Load) -> None:
-    while not load.stop.is_set():
-        try:
-            with RpcClient(sock, timeout=30.0) as c:
-                while not load.stop.is_set():
-                    c.call("status")
-                    with load.lock:
-                        load.status_calls += 1
-        except Exception as exc:  # counted; connect again (a refused client, a timeout)
-            load.error(type(exc).__name__)
-            load.stop.wait(0.05)
-
-
-def _batch(sock: Path, load: Load) -> None:
-    """One oversized batch line; what came back (an error code, or a reply) and its size."""
-    line = json.dumps([{"jsonrpc": "2.0", "id": i, "method": "status"} for i in range(BATCH_CALLS)])
-    t0 = time.monotonic()
-    got = b""
-    try:
-        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-            s.settimeout(30)
-            s.connect(str(sock))
-            s.sendall(line.encode() + b"\n")
-            while not got.endswith(b"\n"):
-                chunk = s.recv(1 << 20)
-                if not chunk:
-                    break
-                got += chunk
-    except OSError as exc:
-        load.error(f"batch {type(exc).__name__}")
-        return
-    try:
-        reply = json.loads(got)
-        answer = str(reply["error"]["code"]) if isinstance(reply, dict) and "error" in reply else "reply"
-    except (ValueError, KeyError, TypeError):
-        answer = "not JSON" if got else "closed"
-    with load.lock:
-        load.batches += 1
-        load.batch_answers[answer] = load.batch_answers.get(answer, 0) + 1
-        load.batch_reply_bytes_max = max(load.batch_reply_bytes_max, len(got))
-        load.batch_reply_s_max = max(load.batch_reply_s_max, time.monotonic() - t0)
-
-
-def _floor(seconds: float, period_s: float, out: dict[str, Any]) -> None:
-    """The machine's floor beside the daemon: same period, same priority, the other core."""
-    from tvsd.control import latency as L
-    from tvsd.control.runner import request_realtime
-
-    cpus = sorted(os.sched_getaffinity(0))
-    other = cpus[0] if len(cpus) > 1 else None  # the control thread takes the last one
-    ints, hist = L.run_floor(seconds, period_s, lambda: request_realtime(cpu=other, lock=False))
-    out["floor"] = L.jitter(ints, hist)
-
-
-def _export(rec: Path, results: list[dict[str, Any]]) -> None:
-    out = rec.with_name(rec.name + ".csv")
-    r = subprocess.run(
-        [sys.executable, "-m", "tvsd.cli.main", "export", str(rec), "--csv", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    ok = r.returncode == 0 and out.exists()
-    gaps = 0
-    if ok:
-        with out.open() as f:
-            gaps = sum(1 for line in f if line.startswith("# gap_"))
-    results.append({"recording": rec.name, "ok": ok, "gaps": gaps, "error": r.stderr.strip()[-300:]})
 
 
 class _Daemon:
@@ -163,7 +69,7 @@ class _Daemon:
         log = self.log_path.open("wb")
         self.proc = subprocess.Popen(
             [*command, "--sil", "--realtime", "--socket", str(self.sock), "--data-dir", str(tmp / "data")],
-            stdout=log, stderr=log, preexec_fn=_die_with_parent(signal.SIGTERM),
+            stdout=log, stderr=log, preexec_fn=die_with_parent(signal.SIGTERM),
         )  # fmt: skip
         log.close()
 
@@ -250,15 +156,12 @@ def soak(
                 period_s = 1.0 / round(before["loop"]["rate_hz"])
             recording = Path(str(ctl.call("record_start")["recording"]))  # type: ignore[index]
             attempted = 1
-            hogs = [
-                subprocess.Popen([sys.executable, "-c", HOG], preexec_fn=_die_with_parent(signal.SIGKILL))
-                for _ in range(os.cpu_count() or 2)
-            ]
+            hogs = start_hogs(os.cpu_count() or 2)
             floor: dict[str, Any] = {}
             threads = [
-                threading.Thread(target=_hammer, args=(tvsd.sock, load), daemon=True) for _ in range(clients)
+                threading.Thread(target=hammer, args=(tvsd.sock, load), daemon=True) for _ in range(clients)
             ]
-            threads.append(threading.Thread(target=_floor, args=(seconds, period_s, floor), daemon=True))
+            threads.append(threading.Thread(target=floor_probe, args=(seconds, period_s, floor), daemon=True))
             for th in threads:
                 th.start()
             t0 = time.monotonic()
@@ -267,11 +170,11 @@ def soak(
                 if tvsd.proc.poll() is not None:
                     raise tvsd.fail(f"tvsd exited with status {tvsd.proc.returncode} during the soak")
                 if now >= next_batch:
-                    _batch(tvsd.sock, load)
+                    batch(tvsd.sock, load)
                     next_batch += BATCH_EVERY_S
                 if now >= next_rec and now + every / 2 < t0 + seconds:
                     ctl.call("record_stop")
-                    th = threading.Thread(target=_export, args=(recording, exports), daemon=True)
+                    th = threading.Thread(target=export, args=(recording, exports), daemon=True)
                     th.start()
                     export_threads.append(th)
                     recording = Path(str(ctl.call("record_start")["recording"]))  # type: ignore[index]
@@ -290,7 +193,7 @@ def soak(
                 th.join(60)
             if "floor" not in floor:  # a floor that missed deadlines runs past the soak: wait
                 threads[-1].join(seconds)
-            _export(recording, exports)
+            export(recording, exports)
             for th in export_threads:
                 th.join(600)
         finally:
