@@ -136,6 +136,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.set_defaults(func=_run)
 
 
+def _words(value: Any) -> Any:
+    """A dict figure (faults by kind, answers by code) as `a=1, b=2` in the table; `none` if empty."""
+    if isinstance(value, dict):
+        return ", ".join(f"{k}={v}" for k, v in value.items()) or "none"
+    return value
+
+
 def _positive_int(text: str) -> int:
     try:
         n = int(text)
@@ -189,7 +196,7 @@ def _run(args: argparse.Namespace) -> int:
             done.append(name)
             if not args.json:  # each group as it finishes: a long suite is never silent
                 print(f"\n# {name} ({time.monotonic() - t0:.1f} s)")
-                print_pairs(got)
+                print_pairs({k: _words(v) for k, v in got.items()})
                 sys.stdout.flush()
     except KeyboardInterrupt:
         left = groups[len(done) :]
