@@ -123,6 +123,33 @@ def test_loss_is_reported_within_its_bound_and_samples_resume(tmp_path: Path) ->
     print(f"lost declared {check:.3f} s after the injection (bound 0.2 s + one check)")
 
 
+def test_a_sensor_gone_for_good_counts_its_missing_samples_as_lost(tmp_path: Path) -> None:
+    """Issue 13: a permanent SA disconnect reported `lost` = 0 while 81 % of its samples were
+    missing (the count covered gaps between delivered samples only, and the status snapshot was
+    refreshed only when data came). Now the status counts every sample the sensor took since the
+    newest delivered one, by its rate and the time elapsed. Bounds: the status snapshot is taken
+    on the reader thread after a poll, every 0.2 s, and a failing sensor is polled at most every
+    0.5 s (the back-off's cap): it may lag by 0.7 s of samples, never lead; the rate is the
+    fitted one (0.2 %)."""
+    got: dict[str, float] = {}
+
+    async def body(svc: ImuService, seen: Seen) -> None:
+        await until(lambda: svc.state == "ok", 2.0, "state ok")
+        await asyncio.sleep(0.3)  # the clock fits settle
+        svc.inject("loss", "sa")
+        await until(lambda: svc.state == "lost", 5.0, "lost")
+        await asyncio.sleep(1.5)
+        st = svc.status()["sensors"]  # type: ignore[index]
+        t_last = max(b.t[-1] for b in seen.batches if b.sensor == "sa")
+        got.update(lost=st["sa"]["lost"], gone_s=time.monotonic() - t_last)
+
+    svc = ImuService(settings(tmp_path), "sil")
+    run(body, svc)
+    rate = svc.devices["sa"].rate_hz
+    missing = rate * got["gone_s"]  # > 1.7 s of samples: 10x the FIFO
+    assert rate * (got["gone_s"] - 0.7) * 0.998 - 1 <= got["lost"] <= missing * 1.002 + 1, (got, rate)
+
+
 def _mean_noise(n: int, rate: float = 1000.0) -> float:
     """Standard error of the mean of n gyro samples at rest, rad/s: the twin's white rate noise
     (datasheet density) over the sample band; the DLPF has unit gain at DC, so it does not
@@ -337,7 +364,10 @@ def test_the_sa_gyro_follows_the_running_plant(tmp_path: Path) -> None:
         async def main() -> float:
             await svc.start()
             await until(
-                gap_free_s, ok=lambda s: s > 2.5, timeout=50.0, interval=0.2,
+                gap_free_s,
+                ok=lambda s: s > 2.5,
+                timeout=50.0,
+                interval=0.2,
                 what="2.5 s of SA samples, none lost",
             )  # fmt: skip
             rate = svc.status()["sensors"]["sa"]["rate_hz"]  # type: ignore[index]

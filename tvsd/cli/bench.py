@@ -11,7 +11,7 @@ from collections.abc import Callable
 from typing import Any
 
 from tvsd.cli.output import print_json, print_pairs
-from tvsd.errors import EXIT_OK
+from tvsd.errors import EXIT_FAILURE, EXIT_OK
 
 EXIT_INTERRUPTED = 130  # as tvsctl's other commands on Ctrl-C (128 + SIGINT)
 
@@ -85,6 +85,14 @@ def _api() -> dict[str, Any]:
     return bench_point_latency()
 
 
+def _soak(args: argparse.Namespace) -> dict[str, Any]:
+    from tvsd.cli.progress import progress_bar
+    from tvsd.daemon.soak import soak
+
+    with progress_bar(f"soak {args.seconds:g} s", args.seconds) as advance:
+        return soak(args.seconds, clients=args.clients, progress=advance)
+
+
 # name -> function returning a flat dict of figures; one line per benchmark group.
 BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "sim": _sim,
@@ -99,6 +107,8 @@ BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "loop": _loop,
     "api": _api,
 }
+# Groups run only when named (--only): soak takes 10 min and loads every core.
+ON_REQUEST: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {"soak": _soak}
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -106,9 +116,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "bench",
         help="run the benchmarks and print the figures",
         description="Runs each group and prints its figures as soon as it finishes; Ctrl-C keeps "
-        "(and prints) the groups done so far. Groups take 0.3 s to 2 min each on 2 cores.",
+        "(and prints) the groups done so far. Groups take 0.3 s to 2 min each on 2 cores; soak, "
+        "run only when named, takes --seconds (10 min) and loads every core. Exit status 1 when "
+        "the soak misses a target.",
     )
-    p.add_argument("--only", choices=sorted(BENCHES), action="append", help="run only these groups")
+    p.add_argument(
+        "--only", choices=sorted([*BENCHES, *ON_REQUEST]), action="append", help="run only these groups"
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object (at the end, or on Ctrl-C)")
     p.add_argument(
         "--frames",
@@ -116,7 +130,24 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         default=1_000_000,
         help="damaged frames per decoder for the fuzz group (default 10^6: 7 s idle, ~70 s loaded)",
     )
+    p.add_argument(
+        "--seconds", type=_positive_float, default=600.0, metavar="S", help="soak: its length (default 600)"
+    )
+    p.add_argument(
+        "--clients",
+        type=_clients,
+        default=50,
+        metavar="N",
+        help="soak: RPC clients polling status (default 50)",
+    )
     p.set_defaults(func=_run)
+
+
+def _words(value: Any) -> Any:
+    """A dict figure (faults by kind, answers by code) as `a=1, b=2` in the table; `none` if empty."""
+    if isinstance(value, dict):
+        return ", ".join(f"{k}={v}" for k, v in value.items()) or "none"
+    return value
 
 
 def _positive_int(text: str) -> int:
@@ -127,6 +158,26 @@ def _positive_int(text: str) -> int:
     if n < 1:
         raise argparse.ArgumentTypeError(f"expected a whole number of frames >= 1, got {text!r}")
     return n
+
+
+def _clients(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if not 1 <= n <= 1000:
+        raise argparse.ArgumentTypeError(f"expected a number of clients 1..1000, got {text!r}")
+    return n
+
+
+def _positive_float(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        x = 0.0
+    if not 0 < x < 1e6:
+        raise argparse.ArgumentTypeError(f"expected seconds > 0 (and below 10^6), got {text!r}")
+    return x
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -144,12 +195,15 @@ def _run(args: argparse.Namespace) -> int:
             if on_terminal():
                 print(f"[{n}/{len(groups)}] {name} …", file=sys.stderr, flush=True)
             t0 = time.monotonic()
-            got = BENCHES[name](args.frames) if name == "fuzz" else BENCHES[name]()
+            if name in ON_REQUEST:
+                got = ON_REQUEST[name](args)
+            else:
+                got = BENCHES[name](args.frames) if name == "fuzz" else BENCHES[name]()
             figures.update(got)
             done.append(name)
             if not args.json:  # each group as it finishes: a long suite is never silent
                 print(f"\n# {name} ({time.monotonic() - t0:.1f} s)")
-                print_pairs(got)
+                print_pairs({k: _words(v) for k, v in got.items()})
                 sys.stdout.flush()
     except KeyboardInterrupt:
         left = groups[len(done) :]
@@ -161,4 +215,4 @@ def _run(args: argparse.Namespace) -> int:
         return EXIT_INTERRUPTED
     if args.json:
         print_json({**figures, "groups_done": done})
-    return EXIT_OK
+    return EXIT_FAILURE if figures.get("soak_pass") is False else EXIT_OK

@@ -10,7 +10,7 @@ from __future__ import annotations
 import enum
 import time
 from collections import Counter, deque
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 from tvsd.control.runner import LoopFault
@@ -56,7 +56,15 @@ class FaultEntry:
     kind: FaultKind = FaultKind.CONTROL
 
     def to_json(self) -> dict[str, Any]:
-        return {**asdict(self), "kind": str(self.kind)}
+        # Field by field, not dataclasses.asdict (its deep copy took ~0.1 ms an entry: 1 ms of
+        # every status build with 10 faults listed, on the event loop).
+        return {
+            "t_unix": self.t_unix,
+            "cause": self.cause,
+            "action": self.action,
+            "safe_after_ms": self.safe_after_ms,
+            "kind": str(self.kind),
+        }
 
 
 class FaultLog:

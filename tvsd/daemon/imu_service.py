@@ -145,7 +145,7 @@ class ImuService:
             for n in NAMES
         }
         self.bus = bus
-        self.reader = ImuReader(list(self._sensors.values()), self.clock, self._sink)
+        self.reader = ImuReader(list(self._sensors.values()), self.clock, self._sink, self._polled)
         self._t_start = self.clock.now()
         self._last_data.clear()
         self._snap.clear()
@@ -216,20 +216,24 @@ class ImuService:
 
     # --- batches: reader thread → loop thread ----------------------------------------------------
     def _sink(self, batch: ImuBatch) -> None:
-        """On the reader thread: note the delivery, refresh the sensor's status snapshot now and
-        then, hand the batch to the loop. Never raises (ImuReader would lose its thread)."""
-        now = self.clock.now()
-        self._last_data[batch.sensor] = now
-        sensor = self._sensors.get(batch.sensor)
-        if sensor is not None and now - self._snap_t.get(batch.sensor, -math.inf) >= SNAPSHOT_S:
-            with contextlib.suppress(Exception):  # the fit's rate and loss estimate: this thread's
-                self._snap[batch.sensor] = sensor.status()
-                self._snap_t[batch.sensor] = now
+        """On the reader thread: note the delivery, hand the batch to the loop. Never raises
+        (ImuReader would lose its thread)."""
+        self._last_data[batch.sensor] = self.clock.now()
         loop = self._loop
         if loop is None:
             return
         with contextlib.suppress(RuntimeError):  # the loop closed under a stopping reader
             loop.call_soon_threadsafe(self._deliver, batch)
+
+    def _polled(self, sensor: SensorReader) -> None:
+        """On the reader thread after each sensor's turn, data or not: refresh its status snapshot
+        (the fitted rate and `lost`, which grows while a sensor is gone) every SNAPSHOT_S.
+        Never raises."""
+        now = self.clock.now()
+        if now - self._snap_t.get(sensor.name, -math.inf) >= SNAPSHOT_S:
+            with contextlib.suppress(Exception):  # the fit's rate and loss estimate: this thread's
+                self._snap[sensor.name] = sensor.status()
+                self._snap_t[sensor.name] = now
 
     def _deliver(self, batch: ImuBatch) -> None:
         self._batches[batch.sensor] = self._batches.get(batch.sensor, 0) + 1

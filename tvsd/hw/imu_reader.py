@@ -9,7 +9,11 @@ but a NACK (it may have popped whole frames, which no count reveals). All end in
 reset, and a new epoch whose first sample number is estimated from the fitted sensor clock, so the
 gap is counted as lost samples. The sensor has no sample counter: without resyncs the count is
 exact; with them it is as good as the clock fit (SensorReader.lost refines it as the fit matures;
-the property tests bound it by the rate error times the span, +-1).
+the property tests bound it by the rate error times the span, +-1). Samples after the newest
+delivered one count as lost as soon as they can no longer arrive (SensorReader.overdue): the FIFO
+overflowed (more than its 85 frames since) or was reset; a sensor gone for good thus counts its
+samples by its rate and the time elapsed, and when it comes back the new epoch's gap takes them
+over (the same samples, never twice).
 
 Sample numbers and times: within an epoch the k-th frame is sample k_start + k. The sensor clock
 (a few % off nominal) is fitted against host read times: the rate by least squares with outlier
@@ -41,6 +45,7 @@ from tvsd.hw.mpu6050 import ImuSettings, Mpu6050
 
 log = logging.getLogger(__name__)
 BACKOFF_MIN_S, BACKOFF_MAX_S = 0.005, 0.5
+FIFO_FRAMES = reg.FIFO_SIZE // reg.FRAME_BYTES  # 85: more samples than this unread overflow it
 
 
 @dataclass(frozen=True)
@@ -88,6 +93,8 @@ class SensorReader:
         self._failures = 0
         self.next_time = 0.0
         self._last_data = 0.0
+        self._newest: tuple[int, int] | None = None  # (k, epoch) of the newest delivered sample
+        self._cut_t = -np.inf  # host time of the latest FIFO reset (what it held is gone)
 
     def status(self) -> dict[str, object]:
         return {
@@ -147,6 +154,7 @@ class SensorReader:
             self._stage, self._wait_s = "start", reg.GYRO_STARTUP_S
         else:
             self.driver.reset_fifo()  # drop the samples of the gyro's start-up
+            self._cut_t = self.clock.now()
             self._stage, self.up = "reset", True
             self._pending.clear()
             self._new_epoch()
@@ -154,6 +162,15 @@ class SensorReader:
 
     @property
     def lost(self) -> int:
+        """Samples the sensor took since the first delivered that never arrived and never will:
+        the gaps between delivered samples (`gaps_lost`) and the tail after the newest one that
+        can no longer arrive (`overdue`). A tail is counted by one of them only: a new epoch's
+        gap is counted once the epoch delivers, which makes the newest delivered sample newer
+        than the tail it replaces."""
+        return self.gaps_lost + self.overdue(self.clock.now())
+
+    @property
+    def gaps_lost(self) -> int:
         """Samples the sensor took between the first and the last delivered, not delivered.
 
         A gap is first estimated when its epoch opens, from a clock fit that may still be young.
@@ -171,6 +188,26 @@ class SensorReader:
         step = round((self.fit.t0(last, rate) - self.fit.t0(first, rate)) * rate)
         return self._gaps + self.fit.dropped_fix + step
 
+    def overdue(self, now: float) -> int:
+        """Samples taken after the newest delivered one, up to `now`, that can no longer arrive:
+        those before a FIFO reset since (it emptied the FIFO), and, once more have come than the
+        FIFO holds (85 frames), all those after it too (an overflow drops the oldest bytes and
+        misaligns the rest: the reader discards the lot when it reads it). Fewer may still be
+        read: not lost yet. By the fitted clock on the newest delivered sample's epoch phase, so
+        a sensor that never comes back counts its samples by its rate and the time elapsed."""
+        if self._newest is None:
+            return 0
+        k, epoch = self._newest
+        rate = self.fit.rate()
+        t0 = self.fit.t0(epoch, rate)
+        start = k
+        before_cut = 0
+        if self._cut_t > t0 + (k + 1) / rate:  # a reset after the newest delivered sample
+            start = max(k, int(np.floor((self._cut_t - t0) * rate)))
+            before_cut = start - k
+        after = int(np.floor((now - t0) * rate)) - start
+        return before_cut + (after if after > FIFO_FRAMES else 0)
+
     def _new_epoch(self) -> None:
         self._pending.clear()
         self._epoch_open = True
@@ -181,6 +218,7 @@ class SensorReader:
         self._pending.clear()
         self._need_resync = True  # stays set if the reset fails, so the next poll retries it
         self.driver.reset_fifo()
+        self._cut_t = self.clock.now()
         self._need_resync = False
         self.resyncs += 1
         self._new_epoch()
@@ -261,6 +299,7 @@ class SensorReader:
         self.samples += len(raw)
         accel, gyro = reg.to_si(raw, self.settings)
         t = self.fit.times(k, self.epoch)
+        self._newest = (int(k[-1]), self.epoch)
         self._ready.append(ImuBatch(self.name, k, self.epoch, t, accel, gyro - self.gyro_bias, raw))
 
 
@@ -283,8 +322,12 @@ class ImuReader:
         sensors: list[SensorReader],
         clock: Clock,
         on_batch: Callable[[ImuBatch], None] | None = None,
+        on_poll: Callable[[SensorReader], None] | None = None,
     ) -> None:
-        self.sensors, self.clock, self.on_batch = sensors, clock, on_batch
+        """`on_batch(batch)` for each delivered batch, `on_poll(sensor)` after each sensor's turn
+        (data or not: a sensor gone for good still has a state and a growing loss), both on the
+        polling thread."""
+        self.sensors, self.clock, self.on_batch, self.on_poll = sensors, clock, on_batch, on_poll
         self._stop = threading.Event()
         self._lock = threading.Lock()  # status() may come from another thread than the polls
         self._thread: threading.Thread | None = None
@@ -304,6 +347,8 @@ class ImuReader:
             if self.on_batch is not None:
                 for batch in batches:
                     self.on_batch(batch)
+            if self.on_poll is not None:
+                self.on_poll(sensor)
         return out
 
     def _wait(self) -> None:
