@@ -19,6 +19,9 @@ import pytest
 from conftest import wait_for
 from test_daemon import daemon, rpc, spin_to, tvsctl, wait_status  # noqa: F401  (daemon: the fixture)
 
+from tvsd.analysis import instrument
+from tvsd.analysis.dataset import load
+from tvsd.config import load_config
 from tvsd.recording.reader import open_recording
 
 RPS = 20.0
@@ -85,6 +88,10 @@ def test_identify_records_its_excitation_feeds_analyze_and_a_fault_aborts_it(dae
     )
     if span[1] - span[0] >= 10.0:
         assert ana.returncode == 0, ana.stderr
+        # The export carries the moving reference, so analyze takes the closed-loop path with the
+        # command-side causes testable (a constant reference drops them; tvsd.analysis.instrument).
+        exported = load(out, load_config())
+        assert "omega_ref" in exported.refs and instrument.reference_moves(exported)
         verdict = json.loads(ana.stdout)
         assert verdict["cause"] and "lyapunov" in verdict, verdict
     else:  # too short a stretch to identify anything: said in one line, exit 2 (DESIGN.md)

@@ -11,10 +11,11 @@ from pathlib import Path
 
 
 def bench_doctor() -> dict[str, object]:
-    """The 60 s timing, then the randomised matrix (tvsd.analysis.matrix: ≥ 50 nulls)."""
+    """The 60 s timing, then the randomised matrix (tvsd.analysis.matrix: ≥ 50 nulls), open loop
+    and closed loop (scanning with tvsctl identify's excitation)."""
     from tvsd.analysis.matrix import run
 
-    return {**bench_analyze(), **run()}
+    return {**bench_analyze(), **run(loop="open"), **run(loop="closed")}
 
 
 def bench_analyze(seconds: float = 60.0) -> dict[str, float]:

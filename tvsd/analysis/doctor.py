@@ -28,7 +28,7 @@ from scipy.stats import chi2
 
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
-from tvsd.analysis import sense
+from tvsd.analysis import instrument, sense
 from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.noise import NoiseReport, analyse
 from tvsd.analysis.prep import Band, prepare
@@ -134,6 +134,7 @@ def diagnose(
     band: Band | None = None,
     progress: Progress | None = None,
     seed: int = 0,
+    iv: bool = False,
 ) -> Diagnosis:
     say = progress or (lambda _msg: None)
     sense.check_recording(data)
@@ -144,6 +145,9 @@ def diagnose(
     say("preparing the regression (band-limited rows, baseline and candidate columns)")
     prep = prepare(data, band)
     design = D.build(prep, data.offset_term, rotary)
+    measured = design
+    if iv and instrument.reference_moves(data):  # closed loop, reference excited: 2SLS (opt-in, README)
+        design, _ = instrument.instrumented(prep, data.offset_term, rotary)
     design.back_emf = data.b_omega > 0 or data.u_unit == "V"
     note = _closed_loop_note(data)
     if note is not None:
@@ -167,7 +171,7 @@ def diagnose(
     verdict = name_cause(design, out, fit, params, err, data)
     say("testing the noise colour")
     rate_rows = 1.0 / float(np.median(np.diff(prep.t_rows)))
-    resid = np.where(out.keep, verdict.residual, 0.0)
+    resid = np.where(out.keep, instrument.residual(measured, design, verdict), 0.0)
     noise = analyse(resid, rate_rows, params["J"] if params["J"] > 0 else 1.0, prep.band.cutoff_hz)
     ranked = verdict.ranked
     colour_sig = noise.colour_p < COLOUR_P
@@ -219,12 +223,7 @@ def diagnose(
 
 
 def _closed_loop_note(data: Dataset) -> str | None:
-    ref = data.refs.get("omega_ref")
-    if ref is None:
-        return None
-    steady = ref[len(ref) // 5 :]
-    level = float(np.mean(np.abs(steady))) if len(steady) else 0.0
-    if level > 0 and float(np.std(steady)) > 0.02 * level:
+    if "omega_ref" not in data.refs or instrument.reference_moves(data):
         return None
     return (
         "closed loop with a constant reference: dead zone, saturation and delay are not testable "

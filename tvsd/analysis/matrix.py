@@ -1,10 +1,14 @@
 """The randomised test matrix of the model doctor (issue 12, item 5): cases nobody tuned for.
 
 Each case draws its own plant (J, kv, τc, R, kM each log-uniform over a 10× span around the
-config's), an excitation (open-loop staircase, open-loop PRBS on a multisine, closed-loop
-scanning), a vibration level (the paper's three σv), and either nothing (a null) or one cause
-at a size m·base, m in SIZES (1× … 30× a base near the detection limit). Sizes are reported in
-noise units: a torque (or its equivalent through the drive) over J·σv.
+config's; L moves with R, as both go with the winding's turns squared, so the electrical time
+constant stays the config's), an excitation (open-loop staircase, open-loop PRBS on a multisine,
+or closed-loop scanning with `tvsctl identify`'s excitation on top: reference steps and multisine,
+PRBS on the voltage), a vibration level (the paper's three σv), and either nothing (a null) or
+one cause at a size m·base, m in SIZES (1× … 30× a base near the detection limit). Sizes are
+reported in noise units: a torque (or its equivalent through the drive) over J·σv.
+The closed-loop cases scan at a speed the drawn plant holds with 40 % of the drive (at most
+CLOSED_RPS): a plant with 3× the friction and a third of the torque constant cannot scan at 20 rev/s.
 """
 
 from __future__ import annotations
@@ -24,9 +28,11 @@ from tvsd.causes import Effect, parse_effect
 from tvsd.config import Config, load_config
 
 SIGMAS = (0.0838, 0.3381, 0.8069)
-# Open loop only: closed-loop identification (the reference as instrument) is not done yet, and
-# a scanning run at constant speed does not excite the drive (see the README).
-PROFILES = ("steps", "multisine")
+OPEN_PROFILES = ("steps", "multisine")
+CLOSED_PROFILES = ("identify",)
+PROFILES = OPEN_PROFILES + CLOSED_PROFILES
+CLOSED_RPS = 10.0  # scanning speed of the closed-loop cases (lower where the plant needs it)
+CLOSED_DRIVE_SHARE = 0.4
 SIZES = (1.0, 3.0, 10.0, 30.0)
 SPAN = math.sqrt(10.0)  # each plant parameter within [÷√10, ×√10] of the config's
 
@@ -41,6 +47,7 @@ class Case:
     profile: str
     sigma_v: float
     plant: dict[str, float]
+    rps: float = 0.0  # scanning speed (closed-loop profiles)
 
 
 def _plant(cfg: Config, g: np.random.Generator) -> Any:
@@ -48,8 +55,21 @@ def _plant(cfg: Config, g: np.random.Generator) -> Any:
     draw = {k: getattr(p, k) * math.exp(g.uniform(-1, 1) * math.log(SPAN)) for k in ("J", "kv", "R", "kM")}
     fric = math.exp(g.uniform(-1, 1) * math.log(SPAN))
     return dataclasses.replace(
-        p, **draw, kb=draw["kM"] * p.kb / p.kM, tau_c=p.tau_c * fric, tau_s=p.tau_s * fric
+        p,
+        **draw,
+        kb=draw["kM"] * p.kb / p.kM,
+        L=p.L * draw["R"] / p.R,
+        tau_c=p.tau_c * fric,
+        tau_s=p.tau_s * fric,
     )
+
+
+def scan_rps(plant: Any, u_max: float) -> float:
+    """The closed-loop cases' scanning speed: CLOSED_RPS, or less where holding it (plus the
+    identify steps) would take more than CLOSED_DRIVE_SHARE of the drive."""
+    volts_per_rad_s = plant.R * plant.kv / plant.kM + plant.kb
+    held = (CLOSED_DRIVE_SHARE * u_max - plant.R * plant.tau_c / plant.kM) / volts_per_rad_s
+    return float(max(1.5, min(CLOSED_RPS, held / (2 * math.pi) - 1.0)))
 
 
 # cause -> (effect text for size m, torque-equivalent size for J·σv units)
@@ -82,7 +102,11 @@ def _effects(
 
 
 def cases(
-    n_null: int = 50, reps: int = 3, seed: int = 0, causes: tuple[str, ...] | None = None
+    n_null: int = 50,
+    reps: int = 3,
+    seed: int = 0,
+    causes: tuple[str, ...] | None = None,
+    profiles: tuple[str, ...] = OPEN_PROFILES,
 ) -> list[Case]:
     cfg = load_config()
     out: list[Case] = []
@@ -98,48 +122,78 @@ def cases(
             text, torque = _effects(plant, cfg.drive.u_max_v, g)[cause](m)
         units = torque / (plant.J * sigma) if math.isfinite(torque) else math.nan
         p = {k2: getattr(plant, k2) for k2 in ("J", "kv", "R", "kM", "tau_c")}
-        out.append(
-            Case(10_000 * seed + k, cause, m, units, text, PROFILES[(k // 3) % len(PROFILES)], sigma, p)
-        )
+        profile = profiles[(k // 3) % len(profiles)]
+        rps = scan_rps(plant, cfg.drive.u_max_v) if profile in CLOSED_PROFILES else 0.0
+        out.append(Case(10_000 * seed + k, cause, m, units, text, profile, sigma, p, rps))
     return out
 
 
-def run_case(case: Case, seconds: float, tmp: Path) -> dict[str, Any]:
+def run_case(case: Case, seconds: float, tmp: Path, iv: bool = False) -> dict[str, Any]:
     from tvsd.analysis.dataset import load
     from tvsd.analysis.doctor import diagnose
     from tvsd.sim.record import record
 
     cfg = load_config()
     plant = dataclasses.replace(cfg.plant, **case.plant)  # type: ignore[arg-type]
-    plant = dataclasses.replace(plant, kb=plant.kM * cfg.plant.kb / cfg.plant.kM)
+    plant = dataclasses.replace(
+        plant, kb=plant.kM * cfg.plant.kb / cfg.plant.kM, L=cfg.plant.L * plant.R / cfg.plant.R
+    )
     sil = cfg.sil_or_default
     vib = dataclasses.replace(sil.vibration, sigma_v=case.sigma_v)
     cfg = dataclasses.replace(cfg, plant=plant, sil=dataclasses.replace(sil, vibration=vib))
     effects: tuple[Effect, ...] = (parse_effect(case.effect),) if case.effect else ()
     path = tmp / f"case{case.seed}.csv"
-    record(cfg, path, case.profile, seconds, effects, case.seed)
+    record(cfg, path, case.profile, seconds, effects, case.seed, rps=case.rps or 20.0)
     t0 = time.perf_counter()
     try:
-        dg = diagnose(load(path, cfg), cfg.plant.v0)
+        dg = diagnose(load(path, cfg), cfg.plant.v0, iv=iv)
         found = dg.cause
     except Exception as exc:  # a bad case is a result too (reported, not hidden)
         found = f"error: {type(exc).__name__}: {exc}"[:120]
     return {"case": case, "found": found, "seconds": time.perf_counter() - t0}
 
 
-def run(n_null: int = 50, reps: int = 3, seconds: float = 30.0, seed: int = 0) -> dict[str, Any]:
-    """The matrix's figures: false alarms on the nulls, and per cause the naming rate by size."""
+def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """Exact two-sided interval of a binomial rate (k of n)."""
+    from scipy.stats import beta
+
+    a = (1 - level) / 2
+    lo = float(beta.ppf(a, k, n - k + 1)) if k > 0 else 0.0
+    hi = float(beta.ppf(1 - a, k + 1, n - k)) if k < n else 1.0
+    return lo, hi
+
+
+def run(
+    n_null: int = 50,
+    reps: int = 3,
+    seconds: float = 30.0,
+    seed: int = 0,
+    loop: str = "open",
+    causes: tuple[str, ...] | None = None,
+    iv: bool = False,
+) -> dict[str, Any]:
+    """The matrix's figures for one loop (open: staircase and multisine; closed: scanning with the
+    identify excitation): false alarms on the nulls with their 95 % Clopper–Pearson interval, and
+    per cause the naming rate by size, keyed doctor_<loop>_… (iv: the closed-loop files through
+    the reference-instrumented design, tvsd.analysis.instrument; keyed doctor_<loop>_iv_…)"""
+    profiles = OPEN_PROFILES if loop == "open" else CLOSED_PROFILES
     t0 = time.perf_counter()
     results = []
     with tempfile.TemporaryDirectory() as tmp:
-        for case in cases(n_null, reps, seed):
-            results.append(run_case(case, seconds, Path(tmp)))
+        for case in cases(n_null, reps, seed, causes, profiles):
+            results.append(run_case(case, seconds, Path(tmp), iv))
+    return summarise(results, f"doctor_{loop}{'_iv' if iv else ''}", time.perf_counter() - t0)
+
+
+def summarise(results: list[dict[str, Any]], key: str, wall_s: float) -> dict[str, Any]:
     nulls = [r for r in results if r["case"].cause == "none"]
     fa = sum(r["found"] != "none" for r in nulls)
+    lo, hi = clopper_pearson(fa, len(nulls)) if nulls else (math.nan, math.nan)
     figures: dict[str, Any] = {
-        "doctor_matrix_nulls": len(nulls),
-        "doctor_matrix_false_alarm_pct": 100.0 * fa / max(len(nulls), 1),
-        "doctor_matrix_false_alarms": sorted({r["found"] for r in nulls if r["found"] != "none"}),
+        f"{key}_nulls": len(nulls),
+        f"{key}_false_alarm_pct": 100.0 * fa / max(len(nulls), 1),
+        f"{key}_false_alarm_ci95_pct": [round(100 * lo, 2), round(100 * hi, 2)],
+        f"{key}_false_alarms": sorted({r["found"] for r in nulls if r["found"] != "none"}),
     }
     by_cause: dict[str, dict[float, list[dict[str, Any]]]] = {}
     for r in results:
@@ -157,13 +211,21 @@ def run(n_null: int = 50, reps: int = 3, seconds: float = 30.0, seed: int = 0) -
             math.nan,
         )
         units = [x["case"].noise_units for x in sizes.get(limit, [])]
-        figures[f"doctor_{cause}_named_pct_by_size"] = {f"{m:g}x": round(100 * v) for m, v in rates.items()}
-        figures[f"doctor_{cause}_90pct_at_size"] = limit
+        figures[f"{key}_{cause}_named_pct_by_size"] = {f"{m:g}x": round(100 * v) for m, v in rates.items()}
+        noise = {f"{m:g}x": _median_units(rs) for m, rs in sorted(sizes.items())}
+        if any(math.isfinite(v) for v in noise.values()):
+            figures[f"{key}_{cause}_noise_units_by_size"] = noise
+        figures[f"{key}_{cause}_90pct_at_size"] = limit
         if units and all(math.isfinite(u) for u in units):
-            figures[f"doctor_{cause}_90pct_noise_units"] = float(np.median(units))
+            figures[f"{key}_{cause}_90pct_noise_units"] = float(np.median(units))
         wrong = sorted({x["found"] for rs in sizes.values() for x in rs if x["found"] != cause})
-        figures[f"doctor_{cause}_named_instead"] = wrong
-    figures["doctor_matrix_cases"] = len(results)
-    figures["doctor_matrix_mean_analyze_s"] = float(np.mean([r["seconds"] for r in results]))
-    figures["doctor_matrix_wall_s"] = time.perf_counter() - t0
+        figures[f"{key}_{cause}_named_instead"] = wrong
+    figures[f"{key}_cases"] = len(results)
+    figures[f"{key}_mean_analyze_s"] = float(np.mean([r["seconds"] for r in results])) if results else 0.0
+    figures[f"{key}_wall_s"] = wall_s
     return figures
+
+
+def _median_units(rs: list[dict[str, Any]]) -> float:
+    u = [x["case"].noise_units for x in rs]
+    return round(float(np.median(u)), 3) if u and all(math.isfinite(v) for v in u) else math.nan

@@ -99,7 +99,7 @@ def name_cause(
     from tvsd.analysis.doctor import Scored
 
     J = params["J"]
-    u = data.u
+    u = design.prep.data.u  # the recorded command, or in closed loop its instrument (instrument.py)
     ranked: list[Any] = []
     chosen: tuple[str, dict[str, Any], np.ndarray, np.ndarray] | None = None  # cause, effect, X, u
     for t in out.tested:

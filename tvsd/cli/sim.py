@@ -68,10 +68,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     rec.add_argument("--out", type=Path, required=True, metavar="FILE.csv")
     rec.add_argument(
         "--profile",
-        choices=("steps", "multisine", "spin"),
+        choices=("steps", "multisine", "spin", "identify"),
         default="steps",
         help="steps: open-loop voltage staircase; multisine: open-loop PRBS on a multisine;\n"
-        "spin: scanning mode to --rps (closed loop; writes omega_ref, phi_ref)",
+        "spin: scanning mode to --rps (closed loop; writes omega_ref, phi_ref);\n"
+        "identify: spin, then tvsctl identify's excitation (config identify:) on top",
     )
     rec.add_argument(
         "--u-unit",

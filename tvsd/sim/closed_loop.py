@@ -43,6 +43,7 @@ def run(
     dt: float,
     n_steps: int,
     u_in: np.ndarray,
+    exc: np.ndarray,
     decim: int,
     seed: int,
     out: np.ndarray,
@@ -51,6 +52,9 @@ def run(
 
     The controller (or the open-loop input u_in, one value per controller period) updates every
     ctrl[C_DIV] steps, so the plant can be integrated finer than the loop runs.
+    In scanning mode, row j of `exc` (rows × 2: rev/s added to the speed target, volts added to
+    the law's output, then clipped to ±umax) holds for controller period j, as the control thread
+    plays `tvsctl identify`'s table; past its last row (or with 0 rows) nothing is added.
 
     Returns the number of reference slips in scanning mode (the anti-windup of the lag).
     """
@@ -106,12 +110,15 @@ def run(
             elif mode == MODE_POSITION:
                 u = robust_law(phi_ref - phi, -omega, Gp, Gd, Gr, G0, umax)
             else:
-                omega_ref = ramp_toward(omega_ref, omega_target, ramp)
+                j = k // div
+                d_rps, d_u = (exc[j, 0], exc[j, 1]) if j < exc.shape[0] else (0.0, 0.0)
+                omega_ref = ramp_toward(omega_ref, omega_target + 2.0 * math.pi * d_rps, ramp)
                 alpha_ref = (omega_ref - omega_ref_prev) / dt_ctrl
                 u, _, phi_ref, slipped = track(
                     phi, omega, phi_ref, omega_ref, alpha_ref, max_lag, use_ff,
                     J0, kv0 + s2, kM0, kb0, R0, ku, tc0, ts0, v0, Gp, Gd, Gr, G0, umax,
                 )  # fmt: skip
+                u = min(max(u + d_u, -umax), umax)
                 slips += slipped
                 omega_ref_prev = omega_ref
 

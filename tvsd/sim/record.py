@@ -7,7 +7,10 @@ Profiles:
 - ``multisine``: open-loop, a PRBS (random-sign levels held 20–300 ms) on a multisine, both
   within the drive limit: broadband excitation, many reversals;
 - ``spin``: the scanning mode from rest to `rps` (closed loop, the robust law); the controller's
-  reference goes into the file as ``omega_ref``, ``phi_ref`` (as the daemon's export does).
+  reference goes into the file as ``omega_ref``, ``phi_ref`` (as the daemon's export does);
+- ``identify``: ``spin``, then from 1 s after the ramp `tvsctl identify`'s excitation (config
+  ``identify:``, its seed the record's: speed-reference steps and multisine, PRBS on the voltage)
+  until the end, as the daemon plays it (tvsd.control.excitation).
 What ``u`` is follows ``u_unit`` (DESIGN.md): ``V`` the drive voltage; ``A`` the motor current
 (as a current-controlled drive reports it); ``N*m`` the torque kM·i; ``duty`` the voltage over the
 drive limit, with ``u_scale`` = that limit.
@@ -18,6 +21,7 @@ voltage over the period. The effects switched on are not written to the file: te
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,12 +30,13 @@ import numpy as np
 
 from tvsd.causes import Effect
 from tvsd.config import Config, MeasurementConfig
+from tvsd.control import excitation
 from tvsd.control.setup import Setup
 from tvsd.errors import UsageError
 from tvsd.recording.csvfile import write
 from tvsd.sim import runs
 
-PROFILES = ("steps", "multisine", "spin")
+PROFILES = ("steps", "multisine", "spin", "identify")
 U_UNITS = ("V", "A", "N*m", "duty")
 
 
@@ -70,6 +75,44 @@ def staircase(rng: np.random.Generator, seconds: float, u_max: float, dt: float)
     return u
 
 
+def identify_table(
+    cfg: Config, setup: Setup, rps: float, seconds: float, seed: int
+) -> tuple[np.ndarray, float]:
+    """`tvsctl identify`'s excitation as the closed-loop kernel's table (one row per controller
+    period), starting 1 s after the ramp to `rps`; and that start, s."""
+    start = abs(rps) / cfg.control.scan_accel_rps2 + 1.0
+    length = seconds - start
+    if length < 1.0:
+        raise UsageError(
+            f"--seconds {seconds:g}: the identify profile needs {start + 1:.3g} s or more "
+            f"(ramp to {rps:g} rev/s, then at least 1 s of excitation)"
+        )
+    ident = dataclasses.replace(cfg.identify, seconds=length, max_seconds=max(length, 1.0), seed=seed)
+    ex = excitation.build(ident)
+    n = round(seconds / setup.dt)
+    k0 = round(start / setup.dt)
+    table = np.zeros((n, 2))
+    rows = np.minimum(((np.arange(n - k0) * setup.dt) / ex.period_s).astype(np.int64), len(ex.d_rps) - 1)
+    table[k0:, 0] = ex.d_rps[rows]
+    table[k0:, 1] = ex.d_volts[rows]
+    return table, start
+
+
+RK4_LIMIT = 1.5  # h·R/L kept below this: RK4's stability limit on the real axis is 2.79
+
+
+def substeps_for(cfg: Config, effects: tuple[Effect, ...]) -> int:
+    """Plant steps per controller period so that the electrical pole −R/L stays inside RK4's
+    stability region all run long (a drifting R included): at 10 kHz the paper's motor has
+    h·R/L = 0.85, so a winding with 3× its R and the same L (or such an R drifting up) would
+    integrate to 1e15 rad/s."""
+    r = cfg.plant.R
+    for e in effects:
+        if e.name == "drift" and e.params.get("parameter") == "R":
+            r *= max(1.0, 1.0 + float(e.params.get("relative_change", 0.0)))
+    return max(1, math.ceil(r / cfg.plant.L / cfg.control.rate_hz / RK4_LIMIT))
+
+
 @dataclass(frozen=True)
 class RecordResult:
     path: Path
@@ -106,7 +149,7 @@ def record(
     if u_unit not in U_UNITS:
         raise UsageError(f"unknown u_unit '{u_unit}'; choose {', '.join(U_UNITS)}")
     m = cfg.sil_or_default.measurement
-    setup = Setup.from_config(cfg, effects=effects, seed=seed)
+    setup = Setup.from_config(cfg, effects=effects, seed=seed, substeps=substeps_for(cfg, effects))
     decim = round(1.0 / (setup.dt * m.sample_rate_hz))
     if decim < 1 or abs(decim * setup.dt * m.sample_rate_hz - 1.0) > 1e-9:
         raise UsageError(
@@ -119,9 +162,14 @@ def record(
         shape = staircase if profile == "steps" else multisine
         trace = runs.open_loop(setup, shape(rng, seconds, setup.u_max, setup.dt), decim)
         meta: dict[str, object] = {"profile": profile}
-    else:
+    elif profile == "spin":
         trace = runs.spin(setup, rps, seconds, decim)
         meta = {"profile": "spin", "rps_setpoint": rps}
+        extra = {"omega_ref": np.gradient(trace.phi_ref, trace.t), "phi_ref": trace.phi_ref}
+    else:
+        exc, start = identify_table(cfg, setup, rps, seconds, seed)
+        trace = runs.spin_excited(setup, rps, seconds, exc, decim)
+        meta = {"profile": "identify", "rps_setpoint": rps, "excitation_start_s": start}
         extra = {"omega_ref": np.gradient(trace.phi_ref, trace.t), "phi_ref": trace.phi_ref}
     cols = measure(trace, m, rng)
     meta["u_unit"] = u_unit

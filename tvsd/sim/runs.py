@@ -55,6 +55,7 @@ def _run(
     decim: int,
     u_in: np.ndarray | None = None,
     state: np.ndarray | None = None,
+    exc: np.ndarray | None = None,
 ) -> Trace:
     """Run n_periods controller periods; one output row every `decim` periods."""
     out = np.zeros((n_periods // decim, C.N_OUT))
@@ -70,6 +71,7 @@ def _run(
         setup.dt / sub,
         n_periods * sub,
         u,
+        np.zeros((0, 2)) if exc is None else np.ascontiguousarray(exc, dtype=np.float64),
         decim * sub,
         setup.seed,
         out,
@@ -97,6 +99,12 @@ def step_response(setup: Setup, ref_rad: float, seconds: float) -> Trace:
 def spin(setup: Setup, rps: float, seconds: float, decim: int = 1) -> Trace:
     """Scanning mode from rest: the speed reference ramps to `rps` and the law tracks it."""
     return _run(setup, C.MODE_SCAN, rps, round(seconds / setup.dt), decim)
+
+
+def spin_excited(setup: Setup, rps: float, seconds: float, exc: np.ndarray, decim: int = 1) -> Trace:
+    """Scanning mode from rest to `rps`, with `exc` (one row per controller period: rev/s added to
+    the speed target, volts added to the command) played on top, as `tvsctl identify` does."""
+    return _run(setup, C.MODE_SCAN, rps, round(seconds / setup.dt), decim, exc=exc)
 
 
 def open_loop(

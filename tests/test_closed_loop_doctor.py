@@ -1,0 +1,95 @@
+"""Closed-loop recordings for the model doctor: the identify profile, the reference as instrument
+(tvsd.analysis.instrument), a plant draw that cannot diverge, and a seeded closed-loop subset of the
+randomised matrix (tvsd.analysis.matrix; the full one is `tvsctl bench --only doctor`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tvsd.analysis import instrument, matrix
+from tvsd.analysis.dataset import load
+from tvsd.analysis.prep import Band, prepare
+from tvsd.causes import parse_effect
+from tvsd.config import load_config
+from tvsd.recording.csvfile import read
+from tvsd.sim.record import RK4_LIMIT, record, substeps_for
+
+
+def test_a_high_resistance_winding_drifting_up_stays_finite(tmp_path: Path) -> None:
+    """The matrix case that reached 1e15 rad/s: R at the top of its draw (×√10) with the config's
+    L, drifting up 15 %, puts h·R/L past RK4's limit (2.79) at 10 kHz. With substeps the run must
+    stay below the speed the drive can reach at all: u_max·kM / (R·kv + kM·kb), the no-load
+    steady speed at full voltage (the smallest R of the run gives the largest)."""
+    cfg = load_config()
+    plant = dataclasses.replace(cfg.plant, R=cfg.plant.R * math.sqrt(10))
+    cfg = dataclasses.replace(cfg, plant=plant)
+    drift = parse_effect("drift:parameter=R,relative_change=0.15")
+    hR_L = plant.R * 1.15 / plant.L / cfg.control.rate_hz
+    assert hR_L > 2.79  # the case is the unstable one without substeps
+    n = substeps_for(cfg, (drift,))
+    assert hR_L / n <= RK4_LIMIT
+    out = tmp_path / "drift.csv"
+    record(cfg, out, "steps", 2.0, (drift,), seed=5)  # an unstable step blows up within ms
+    rec = read(out)
+    top = cfg.drive.u_max_v * plant.kM / (plant.R * plant.kv + plant.kM * plant.kb)
+    assert np.all(np.isfinite(rec.omega)) and np.max(np.abs(rec.omega)) < 1.05 * top + 1.0
+
+
+def test_the_matrix_draws_l_with_r_and_a_reachable_scanning_speed() -> None:
+    """L/R stays the config's (the winding's turns scale both); the closed-loop speed needs at
+    most CLOSED_DRIVE_SHARE of the drive on the drawn plant."""
+    cfg = load_config()
+    for case in matrix.cases(n_null=9, reps=0, seed=3, profiles=matrix.CLOSED_PROFILES):
+        p = case.plant
+        assert case.profile == "identify" and 1.5 <= case.rps <= matrix.CLOSED_RPS
+        w = 2 * math.pi * (case.rps + 1.0)
+        kb = p["kM"] * cfg.plant.kb / cfg.plant.kM
+        volts = p["R"] * (p["kv"] * w + p["tau_c"]) / p["kM"] + kb * w
+        assert case.rps == 1.5 or volts <= matrix.CLOSED_DRIVE_SHARE * cfg.drive.u_max_v * 1.0001
+
+
+def test_the_identify_profile_moves_the_reference_and_the_iv_path_takes_it(tmp_path: Path) -> None:
+    """The profile plays identify's steps and multisine on the speed reference (a moving reference:
+    the instrumented design), a plain spin does not (a constant reference: no instrument). The
+    first stage must explain most of the command's band-limited variance: in closed loop the
+    command follows the reference, and what is left is the law's answer to the noise and the PRBS
+    (±0.5 V on a command of a few volts of steps)."""
+    cfg = load_config()
+    moving, steady = tmp_path / "id.csv", tmp_path / "spin.csv"
+    record(cfg, moving, "identify", 8.0, (), seed=2, rps=10.0)
+    record(cfg, steady, "spin", 8.0, (), seed=2, rps=10.0)
+    d_moving, d_steady = load(moving, cfg), load(steady, cfg)
+    assert instrument.reference_moves(d_moving) and not instrument.reference_moves(d_steady)
+    ref = d_moving.refs["omega_ref"] / (2 * math.pi)
+    late = d_moving.t > 3.0
+    assert np.ptp(ref[late]) > 2 * cfg.identify.step_rps * 0.9  # steps both ways around 10 rev/s
+    fs = instrument.first_stage(prepare(d_moving, Band()))
+    assert fs.r2_u > 0.5 and fs.r2_speed > 0.99
+
+
+# Closed-loop subset (seed 0 of the matrix's closed-loop family, 30 s each, ≈ 5 s per case at load
+# 2, ≈ 70 s at load 30): two nulls and one case per cause at 30× its base. The seeds are fixed, so
+# the outcome is deterministic; what it stands for, measured on the matrix (README, "Closed
+# loop"): imbalance, cogging and delay at 30× were named in 2 of 2 cases each (and at 10×), and a
+# null is a false alarm at 22 % (95 % CI 11.5–36 %), so a fresh pair of null seeds passes with
+# probability ≈ 0.61; these two (and nulls 0–9 of the matrix's closed draw) are `none`.
+SUBSET = ("none", "none", "imbalance", "cogging", "delay")
+
+
+@pytest.mark.slow
+def test_a_seeded_closed_loop_subset_is_named(tmp_path: Path) -> None:
+    picked: list[matrix.Case] = []
+    pool = matrix.cases(n_null=2, reps=1, seed=0, causes=("imbalance", "cogging", "delay"),
+                        profiles=matrix.CLOSED_PROFILES)  # fmt: skip
+    for want in SUBSET:
+        case = next(
+            c for c in pool if c.cause == want and (want == "none" or c.size == 30.0) and c not in picked
+        )
+        picked.append(case)
+    found = [matrix.run_case(c, 30.0, tmp_path)["found"] for c in picked]
+    assert found == list(SUBSET), list(zip(picked, found, strict=True))

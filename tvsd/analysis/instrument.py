@@ -1,0 +1,166 @@
+"""The reference as instrument: closed-loop recordings analysed by instrumental variables.
+
+In closed loop the command answers the noise: the law reacts within a few ms to every speed
+disturbance, and the rows are zero-phase filtered, so the command columns of the regression
+(tvsd.analysis.design) are correlated with its error. Least squares on them is biased, and the
+bootstrap of tvsd.analysis.calibrate, which conditions on the regressors, is then not the null
+distribution either: a command map (dead zone, delay, drift of R) picks up the law's answer to
+the noise.
+
+The instruments follow IDIM-IV's idea (Janot et al.): regressors built from noise-free signals.
+Here the noise-free command and speed are their first-stage predictions from the reference alone
+(two-stage least squares): û and ω̂ are the recorded ω_ref through the loop's own linear
+response, estimated over the file after the spin-up (a static gain, then a Wiener filter where
+the reference is coherent with the signal; û clipped to the recorded command's range, as the law
+saturates on a step). The baseline's command and speed columns, and every candidate block that
+is a function of the command or the speed (dead zone, saturation, delay, drift, friction by
+direction), are then built from û and ω̂; blocks of the angle and of time (imbalance, cogging, a
+line) are their own instruments (the angle tracks the reference to within the lag). The
+acceleration stays measured; the rows are those after the spin-up. Each regressor is then a
+function of the reference, which the noise does not move, so conditioning on the regressors
+(what the bootstrap does) is legitimate again, with no change to calibrate.py.
+
+Status: opt-in (`diagnose(..., iv=True)`, `matrix.run(..., iv=True)`), not the default. On the
+matrix's closed-loop family (scanning with `tvsctl identify`'s excitation) it gave more false
+alarms than least squares on the same nulls (README, "Closed loop"): what the reference does not
+explain — the law's answer to the noise, the PRBS added after the law, the loop's nonlinear
+response to a step that saturates the drive — stays in the second stage's error, structured
+enough for the scanned blocks (saturation, delay, drift) to fit it. A reference that does not
+move (steady scanning) instruments nothing: then the command-side causes are not testable
+(doctor.py drops them).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+from scipy.signal import csd, welch
+
+from tvsd.analysis import design as D
+from tvsd.analysis.dataset import Dataset
+from tvsd.analysis.prep import Prepared
+
+SPUN_SHARE = 0.8
+MIN_COHERENCE = 0.2
+CATCH_UP = 5.0
+SETTLE_S = 0.5
+WIENER_S = 4.0  # Welch segment: 0.25 Hz resolution of the loop's response to the reference
+MOVING_SHARE = 0.005  # the reference must vary by this share of its level (steady scanning: ~0)
+
+
+def reference_moves(data: Dataset) -> bool:
+    """Whether the file holds a closed-loop reference that varies (steps, multisine) after the
+    first fifth (a spin-up alone does not identify the drive's command map)."""
+    ref = data.refs.get("omega_ref")
+    if ref is None or len(ref) < 10:
+        return False
+    steady = ref[len(ref) // 5 :]
+    level = float(np.mean(np.abs(steady)))
+    return level > 0 and float(np.std(steady)) > MOVING_SHARE * level
+
+
+def bank(data: Dataset) -> np.ndarray:
+    """The instrument signal: ω_ref (its slips, where it is the derivative of a slipping φ_ref,
+    clipped to its range)."""
+    w_ref = data.refs["omega_ref"]
+    return np.clip(w_ref, *np.quantile(w_ref, [0.001, 0.999]))
+
+
+@dataclasses.dataclass(frozen=True)
+class FirstStage:
+    u_hat: np.ndarray  # full rate, as the command column (not low-passed)
+    speed_hat: np.ndarray  # full rate, low-passed like prep.speed
+    r2_u: float  # share of the command's band-limited variance the reference explains
+    r2_speed: float
+
+
+def steady_start(data: Dataset) -> int:
+    """The first sample after the spin-up: |ω_ref| has reached SPUN_SHARE of its level, and the
+    tracking error (mean |ω_ref − ω| over SETTLE_S) is back under CATCH_UP × its median and stays
+    there up to the middle of the file. Before it the drive may sit at its limit while the shaft
+    catches up: nothing a linear response to the reference describes."""
+    ref = bank(data)
+    level = float(np.median(np.abs(ref[len(ref) // 5 :])))
+    spun = np.flatnonzero(np.abs(ref) >= SPUN_SHARE * level)
+    first = int(spun[0]) if len(spun) else 0
+    win = max(1, round(SETTLE_S * data.sample_rate_hz))
+    speed = data.speed if data.speed is not None else np.gradient(data.position, data.t)
+    err = np.convolve(np.abs(ref - speed), np.ones(win) / win, mode="same")
+    late = np.flatnonzero(err[: len(err) // 2] > CATCH_UP * float(np.median(err)))
+    after = int(late[-1]) + win if len(late) else 0
+    return min(len(ref) - 1, max(first + win, after))
+
+
+def first_stage(prep: Prepared) -> FirstStage:
+    """û and ω̂: the reference through the closed loop's own linear response, estimated over the
+    file (Wiener filter H = S_rv / S_rr, Welch-averaged; any function of the reference, past or
+    future, is a valid instrument). Constant lags would leave part of the loop's response to the
+    reference in u − û, and a scanned block of û (a delay) would then fit that, not the noise."""
+    data = prep.data
+    ref = bank(data)
+    u_f = prep.lowpass(data.u)
+    rate = data.sample_rate_hz
+    s0 = steady_start(data)
+    edge = slice(max(prep.trim, s0), len(u_f) - prep.trim)
+    # The law saturates at the drive's limits on a reference step: the prediction does too.
+    u_hat = np.clip(_wiener(ref, data.u, rate, s0), float(np.min(data.u)), float(np.max(data.u)))
+    w_hat = prep.lowpass(_wiener(ref, prep.speed, rate, s0))
+    r2_u = _r2(u_f[edge], prep.lowpass(u_hat)[edge])
+    return FirstStage(u_hat, w_hat, r2_u, _r2(prep.speed[edge], w_hat[edge]))
+
+
+def _wiener(x: np.ndarray, y: np.ndarray, fs: float, start: int = 0) -> np.ndarray:
+    """y's best linear prediction from x (any lags), fitted from `start` on (Welch segments of
+    WIENER_S), applied to all of x."""
+    n = len(x)
+    nper = min(n - start, max(64, round(WIENER_S * fs)))
+    # The static part first (Welch's segments lose the mean: the steady-state map would be lost).
+    xs, ys = x[start:], y[start:]
+    A = np.column_stack([np.ones_like(xs), xs])
+    c, *_ = np.linalg.lstsq(A, ys, rcond=None)
+    static = c[0] + c[1] * x
+    xm = float(np.mean(xs))
+    y = y - static
+    ym = 0.0
+    f, Sxy = csd(xs - xm, y[start:], fs, nperseg=nper)
+    _, Sxx = welch(xs - xm, fs, nperseg=nper)
+    _, Syy = welch(y[start:], fs, nperseg=nper)
+    # Only where the reference explains y (coherence): elsewhere the ratio is noise over a
+    # reference with no power, which the spin-up (where there is power) would amplify.
+    coherence = np.abs(Sxy) ** 2 / np.maximum(Sxx * Syy, 1e-300)
+    H = np.where(coherence > MIN_COHERENCE, Sxy / np.maximum(Sxx, 1e-300), 0.0)
+    # Applied to x mirrored (x, then x reversed): periodic without a jump where the FFT wraps (a
+    # spin-up ends far from where it starts, and the loop's response holds a derivative).
+    ext = np.concatenate([x - xm, (x - xm)[::-1]])
+    grid = np.fft.rfftfreq(2 * n, 1.0 / fs)
+    Hn = np.interp(grid, f, H.real) + 1j * np.interp(grid, f, H.imag)
+    return static + ym + np.fft.irfft(np.fft.rfft(ext) * Hn, 2 * n)[:n]
+
+
+def _r2(x: np.ndarray, fit: np.ndarray) -> float:
+    v = float(np.var(x))
+    return 1.0 - float(np.var(x - fit)) / v if v > 0 else 0.0
+
+
+def instrumented(prep: Prepared, offset: bool, rotary: bool) -> tuple[D.Design, FirstStage]:
+    """The design with every command and speed regressor built from the reference's prediction
+    (the acceleration, the angle and time as measured)."""
+    fs = first_stage(prep)
+    data = dataclasses.replace(prep.data, u=fs.u_hat)
+    prep_iv = dataclasses.replace(prep, data=data, speed=fs.speed_hat)
+    t0 = float(prep.data.t[steady_start(prep.data)])
+    return D.build(prep_iv, offset, rotary, fit_mask=prep.t_rows >= t0), fs
+
+
+def residual(measured: D.Design, used: D.Design, verdict: Any) -> np.ndarray:
+    """The equation error for the noise's colour. Open loop: the verdict's residual. IV: the
+    coefficients on the measured regressors (the IV residual y − Xθ); the second stage's own
+    residual also holds the law's answer to the noise (u − û), a low-pass that is no vibration."""
+    if used is measured:
+        return np.asarray(verdict.residual)
+    k = measured.X.shape[1]
+    if used.X.shape[1] != k or verdict.X.shape[1] != k:  # an extension named: its own residual
+        return np.asarray(verdict.residual)
+    return measured.y - measured.X @ np.asarray(verdict.theta)[:k]
