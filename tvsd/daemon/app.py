@@ -395,7 +395,8 @@ class Daemon:
             # with every state frame resumes: listed, not latched (a lost link latches its own).
             self._fault(
                 FaultKind.MCU_WATCHDOG,
-                f"MCU watchdog expired: no heartbeat for {ev.detail} ms (the host's event loop stalled)",
+                f"MCU watchdog expired: no heartbeat for {ev.detail} ms (the control loop stopped "
+                "ticking, or the link's I/O thread was held off the CPU or the GIL)",
                 "the firmware cut PWM and laser until the next heartbeat; the drive resumed",
             )
             return
