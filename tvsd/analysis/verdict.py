@@ -23,6 +23,9 @@ from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.prep import Band, prepare
 
 DRIFT_WINDOWS = 5
+DZ_REFIT_SPAN = 0.6  # dead-zone widths profiled up to this share of the largest command
+DZ_REFIT_POINTS = 120
+DZ_CHI2_95 = 3.841  # χ²₁ 95 % point: the width's profile-likelihood interval
 
 
 @dataclass
@@ -41,14 +44,12 @@ def _refit_input(
     design: D.Design, out: C.Outcome, cause: str, u: np.ndarray
 ) -> tuple[dict[str, Any], np.ndarray]:
     """Threshold or delay by the structural model: the drive fed the transformed command."""
+    if cause == "deadzone":
+        return _refit_deadzone(design, out, u)
     top = float(np.max(np.abs(u)))
     fs = design.prep.data.sample_rate_hz
     grid: list[tuple[dict[str, Any], np.ndarray]] = []
-    if cause == "deadzone":
-        for x in np.linspace(0.0, 0.6, 61)[1:] * top:
-            if D.supported_threshold(design.prep, x):
-                grid.append(({"u0": float(x)}, np.where(np.abs(u) <= x, 0.0, u - np.sign(u) * x)))
-    elif cause == "saturation":
+    if cause == "saturation":
         for x in np.linspace(0.2, 1.0, 41) * top:
             if D.supported_threshold(design.prep, x):
                 grid.append(({"u_max": float(x)}, np.clip(u, -x, x)))
@@ -64,6 +65,42 @@ def _refit_input(
             best = (rss, effect, ua)
     assert best is not None
     return best[1], best[2]
+
+
+def dead_zone(u: np.ndarray, u0: float) -> np.ndarray:
+    return np.where(np.abs(u) <= u0, 0.0, u - np.sign(u) * u0)
+
+
+def _refit_deadzone(design: D.Design, out: C.Outcome, u: np.ndarray) -> tuple[dict[str, Any], np.ndarray]:
+    """The width by its profile likelihood: the drive fed the dead-zoned command, gain, Coulomb
+    and every other baseline coefficient refitted at each width.
+
+    No width is excluded for lack of commands below it (the test's scan needs that support, the
+    refit does not): a width below every command level still shows where the command and the
+    motion have opposite signs (reversals), where a dead zone and Coulomb friction push opposite
+    ways — the only place the two are told apart, so the linearised block's trade with the free
+    Coulomb level biased the width up to the smallest supported level (0.71 V read as 1.56 V).
+    The profile's minimum is refined by a parabola through its neighbours; the interval is where
+    the profile stays within χ²₁(95 %) of it (whitened RSS in units of its variance).
+    """
+    top = float(np.max(np.abs(u)))
+    xs = np.linspace(0.0, DZ_REFIT_SPAN, DZ_REFIT_POINTS + 1)[1:] * top
+    rss = np.array([C.gls(design.y, D.with_input(design, dead_zone(u, x)), out.ar, out.keep).rss for x in xs])
+    k = int(np.argmin(rss))
+    x_best = float(xs[k])
+    if 0 < k < len(xs) - 1:
+        r_m, r_0, r_p = rss[k - 1], rss[k], rss[k + 1]
+        curv = r_m - 2 * r_0 + r_p
+        if curv > 0:
+            x_best = float(xs[k] + 0.5 * (r_m - r_p) / curv * (xs[1] - xs[0]))
+    n = out.n
+    var = float(rss[k]) / max(n - design.X.shape[1] - 1, 1)
+    inside = xs[rss - rss[k] <= DZ_CHI2_95 * var]
+    effect: dict[str, Any] = {"u0": x_best}
+    if len(inside):
+        step = float(xs[1] - xs[0])
+        effect["u0_interval"] = [max(float(inside.min()) - step, 0.0), float(inside.max()) + step]
+    return effect, dead_zone(u, x_best)
 
 
 def _drift_agrees(design: D.Design, out: C.Outcome, parameter: str, sign: float) -> bool:
