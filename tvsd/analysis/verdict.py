@@ -58,13 +58,22 @@ def _refit_input(
             grid.append(({"delay_s": k / fs}, D.shifted(u, k)))
     if not grid:  # no supported value on the fine grid: the scanned one stands
         grid.append(({}, u))
-    best: tuple[float, dict[str, Any], np.ndarray] | None = None
+    best: tuple[float, dict[str, Any], np.ndarray, np.ndarray] | None = None
     for effect, ua in grid:
-        rss = C.gls(design.y, D.with_input(design, ua), out.ar, out.keep).rss
-        if best is None or rss < best[0]:
-            best = (rss, effect, ua)
+        fit = C.gls(design.y, D.with_input(design, ua), out.ar, out.keep)
+        if best is None or fit.rss < best[0]:
+            best = (fit.rss, effect, ua, fit.theta)
     assert best is not None
-    return best[1], best[2]
+    effect, theta = dict(best[1]), best[3]
+    if cause == "delay" and theta[0] + theta[1] != 0:
+        # The input columns u(t−k), u(t−k+1) with weights a₀, a₁ are u delayed by k − a₁/(a₀+a₁)
+        # samples (to first order in the band): the delay to a fraction of a sample, where the
+        # grid alone is ±1 (tvsd multisine 1.5/3.1/5/11.5 ms → 1.57/3.18/5.08/11.55; bench-dev
+        # 3.1/11.5 → 3.11/11.7; the grid gave 3/3/6/13 and 4/11).
+        k = round(float(effect["delay_s"]) * fs)
+        effect["grid_samples"] = k
+        effect["delay_s"] = (k - float(theta[1] / (theta[0] + theta[1]))) / fs
+    return effect, best[2]
 
 
 def dead_zone(u: np.ndarray, u0: float) -> np.ndarray:
@@ -152,10 +161,13 @@ def name_cause(
         if above and chosen is None and t.option is not None and t.cause in D.INPUT_CAUSES:
             effect, u_app = _refit_input(design, out, t.cause, u)
             X_ext = D.with_input(design, u_app)
-            # The structural refit lands on "no effect" (a delay under two samples, which the
-            # baseline's two input columns already hold): the scanned block fitted noise.
+            # The structural refit lands on "no effect" (a delay under two samples on the grid, or
+            # under one by its fraction, which the baseline's two input columns already hold):
+            # the scanned block fitted noise.
             fs = design.prep.data.sample_rate_hz
-            dissolved = t.cause == "delay" and float(effect.get("delay_s", 0.0)) < 2.0 / fs
+            dissolved = t.cause == "delay" and (
+                int(effect.get("grid_samples", 0)) < 2 or float(effect["delay_s"]) < 1.0 / fs
+            )
         if (above and chosen is None) or t.cause in (
             "imbalance",
             "cogging",
