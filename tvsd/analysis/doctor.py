@@ -30,7 +30,7 @@ from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis import sense
 from tvsd.analysis.dataset import Dataset
-from tvsd.analysis.noise import NoiseReport, analyse, processing_response
+from tvsd.analysis.noise import NoiseReport, analyse
 from tvsd.analysis.prep import Band, prepare
 from tvsd.analysis.simulate import ReducedModel, simulate
 from tvsd.causes import Effect
@@ -168,8 +168,7 @@ def diagnose(
     say("testing the noise colour")
     rate_rows = 1.0 / float(np.median(np.diff(prep.t_rows)))
     resid = np.where(out.keep, verdict.residual, 0.0)
-    J_noise = params["J"] if params["J"] > 0 else 1.0
-    noise = analyse(resid, rate_rows, J_noise, prep.band.cutoff_hz, processing_response(prep))
+    noise = analyse(resid, rate_rows, params["J"] if params["J"] > 0 else 1.0, prep.band.cutoff_hz)
     ranked = verdict.ranked
     colour_sig = noise.colour_p < COLOUR_P
     ranked.append(
