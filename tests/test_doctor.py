@@ -44,9 +44,9 @@ CASES = {
     "cogging": ("cogging:order=4,amplitude=2e-4", {"order": ("eq", 4), "amplitude": ("rel", 0.3)}),
     "resonance": ("resonance:frequency_hz=43.0,amplitude=2e-4", {"frequency_hz": ("abs", 0.1)}),
     "saturation": ("saturation:u_max=7.0", {"u_max": ("rel", 0.1)}),
-    # The width is not checked: on tvsd's staircase the free Coulomb level trades against it
-    # (0.8 V comes out 1.9 V; README, "Model doctor", known limits).
-    "deadzone": ("deadzone:u0=0.8", {}),
+    # The width by its profile likelihood: its 95 % interval here is ±14 %, so 15 % is ≈ 2 standard
+    # errors; the truth must also lie inside the reported interval.
+    "deadzone": ("deadzone:u0=0.8", {"u0": ("rel", 0.15)}),
     "delay": ("delay:delay_s=0.008", {"delay_s": ("abs", 0.0011)}),
     "friction_asymmetry": ("friction_asymmetry:ratio=1.6", {"ratio": ("rel", 0.15)}),
     "colored_noise": ("colored_noise:tau_s=0.02", {"tau_s": ("factor", 2.0)}),
@@ -63,6 +63,9 @@ def test_a_hidden_effect_is_named_with_its_parameters(tmp_path, capsys, cause):
     truth = dict(kv.split("=") for kv in text.split(":")[1].split(","))
     for key, (kind, tol) in rules.items():
         got, want = float(res["effect"][key]), float(truth[key]) if key in truth else tol
+        if f"{key}_interval" in res["effect"]:
+            lo, hi = res["effect"][f"{key}_interval"]
+            assert lo <= want <= hi, f"{key}: {want:.4g} outside its interval [{lo:.4g}, {hi:.4g}]"
         if kind == "eq":
             assert got == tol
         elif kind == "rel":

@@ -57,7 +57,7 @@ KEEP = {
     "cogging": ("order", "amplitude", "phase"),
     "resonance": ("frequency_hz", "amplitude", "phase"),
     "saturation": ("u_max",),
-    "deadzone": ("u0",),
+    "deadzone": ("u0", "u0_interval"),
     "delay": ("delay_s",),
     "friction_asymmetry": ("ratio",),
     "colored_noise": ("tau_s",),

@@ -23,6 +23,9 @@ from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.prep import Band, prepare
 
 DRIFT_WINDOWS = 5
+DZ_REFIT_SPAN = 0.6  # dead-zone widths profiled up to this share of the largest command
+DZ_REFIT_POINTS = 120
+DZ_CHI2_95 = 3.841  # χ²₁ 95 % point: the width's profile-likelihood interval
 
 
 @dataclass
@@ -41,14 +44,12 @@ def _refit_input(
     design: D.Design, out: C.Outcome, cause: str, u: np.ndarray
 ) -> tuple[dict[str, Any], np.ndarray]:
     """Threshold or delay by the structural model: the drive fed the transformed command."""
+    if cause == "deadzone":
+        return _refit_deadzone(design, out, u)
     top = float(np.max(np.abs(u)))
     fs = design.prep.data.sample_rate_hz
     grid: list[tuple[dict[str, Any], np.ndarray]] = []
-    if cause == "deadzone":
-        for x in np.linspace(0.0, 0.6, 61)[1:] * top:
-            if D.supported_threshold(design.prep, x):
-                grid.append(({"u0": float(x)}, np.where(np.abs(u) <= x, 0.0, u - np.sign(u) * x)))
-    elif cause == "saturation":
+    if cause == "saturation":
         for x in np.linspace(0.2, 1.0, 41) * top:
             if D.supported_threshold(design.prep, x):
                 grid.append(({"u_max": float(x)}, np.clip(u, -x, x)))
@@ -57,13 +58,58 @@ def _refit_input(
             grid.append(({"delay_s": k / fs}, D.shifted(u, k)))
     if not grid:  # no supported value on the fine grid: the scanned one stands
         grid.append(({}, u))
-    best: tuple[float, dict[str, Any], np.ndarray] | None = None
+    best: tuple[float, dict[str, Any], np.ndarray, np.ndarray] | None = None
     for effect, ua in grid:
-        rss = C.gls(design.y, D.with_input(design, ua), out.ar, out.keep).rss
-        if best is None or rss < best[0]:
-            best = (rss, effect, ua)
+        fit = C.gls(design.y, D.with_input(design, ua), out.ar, out.keep)
+        if best is None or fit.rss < best[0]:
+            best = (fit.rss, effect, ua, fit.theta)
     assert best is not None
-    return best[1], best[2]
+    effect, theta = dict(best[1]), best[3]
+    if cause == "delay" and theta[0] + theta[1] != 0:
+        # The input columns u(t−k), u(t−k+1) with weights a₀, a₁ are u delayed by k − a₁/(a₀+a₁)
+        # samples (to first order in the band): the delay to a fraction of a sample, where the
+        # grid alone is ±1 (tvsd multisine 1.5/3.1/5/11.5 ms → 1.57/3.18/5.08/11.55; bench-dev
+        # 3.1/11.5 → 3.11/11.7; the grid gave 3/3/6/13 and 4/11).
+        k = round(float(effect["delay_s"]) * fs)
+        effect["grid_samples"] = k
+        effect["delay_s"] = (k - float(theta[1] / (theta[0] + theta[1]))) / fs
+    return effect, best[2]
+
+
+def dead_zone(u: np.ndarray, u0: float) -> np.ndarray:
+    return np.where(np.abs(u) <= u0, 0.0, u - np.sign(u) * u0)
+
+
+def _refit_deadzone(design: D.Design, out: C.Outcome, u: np.ndarray) -> tuple[dict[str, Any], np.ndarray]:
+    """The width by its profile likelihood: the drive fed the dead-zoned command, gain, Coulomb
+    and every other baseline coefficient refitted at each width.
+
+    No width is excluded for lack of commands below it (the test's scan needs that support, the
+    refit does not): a width below every command level still shows where the command and the
+    motion have opposite signs (reversals), where a dead zone and Coulomb friction push opposite
+    ways — the only place the two are told apart, so the linearised block's trade with the free
+    Coulomb level biased the width up to the smallest supported level (0.71 V read as 1.56 V).
+    The profile's minimum is refined by a parabola through its neighbours; the interval is where
+    the profile stays within χ²₁(95 %) of it (whitened RSS in units of its variance).
+    """
+    top = float(np.max(np.abs(u)))
+    xs = np.linspace(0.0, DZ_REFIT_SPAN, DZ_REFIT_POINTS + 1)[1:] * top
+    rss = np.array([C.gls(design.y, D.with_input(design, dead_zone(u, x)), out.ar, out.keep).rss for x in xs])
+    k = int(np.argmin(rss))
+    x_best = float(xs[k])
+    if 0 < k < len(xs) - 1:
+        r_m, r_0, r_p = rss[k - 1], rss[k], rss[k + 1]
+        curv = r_m - 2 * r_0 + r_p
+        if curv > 0:
+            x_best = float(xs[k] + 0.5 * (r_m - r_p) / curv * (xs[1] - xs[0]))
+    n = out.n
+    var = float(rss[k]) / max(n - design.X.shape[1] - 1, 1)
+    inside = xs[rss - rss[k] <= DZ_CHI2_95 * var]
+    effect: dict[str, Any] = {"u0": x_best}
+    if len(inside):
+        step = float(xs[1] - xs[0])
+        effect["u0_interval"] = [max(float(inside.min()) - step, 0.0), float(inside.max()) + step]
+    return effect, dead_zone(u, x_best)
 
 
 def _drift_agrees(design: D.Design, out: C.Outcome, parameter: str, sign: float) -> bool:
@@ -115,10 +161,13 @@ def name_cause(
         if above and chosen is None and t.option is not None and t.cause in D.INPUT_CAUSES:
             effect, u_app = _refit_input(design, out, t.cause, u)
             X_ext = D.with_input(design, u_app)
-            # The structural refit lands on "no effect" (a delay under two samples, which the
-            # baseline's two input columns already hold): the scanned block fitted noise.
+            # The structural refit lands on "no effect" (a delay under two samples on the grid, or
+            # under one by its fraction, which the baseline's two input columns already hold):
+            # the scanned block fitted noise.
             fs = design.prep.data.sample_rate_hz
-            dissolved = t.cause == "delay" and float(effect.get("delay_s", 0.0)) < 2.0 / fs
+            dissolved = t.cause == "delay" and (
+                int(effect.get("grid_samples", 0)) < 2 or float(effect["delay_s"]) < 1.0 / fs
+            )
         if (above and chosen is None) or t.cause in (
             "imbalance",
             "cogging",
