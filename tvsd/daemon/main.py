@@ -120,7 +120,7 @@ def _make_dir(folder: Path, option: str) -> str | None:
     return None
 
 
-IO_NICE = -10  # the event loop and the threads it starts: first among normal tasks, never SCHED_FIFO
+IO_PRIORITY = 40  # SCHED_FIFO of the event loop and the threads it starts; the control thread: 80
 # The GIL's hand-over interval. The MCU link's I/O thread (the heartbeat, the state frames) waits
 # up to this for the GIL whenever another thread runs Python; the default 5 ms is a tenth of the
 # firmware's 50 ms watchdog, 1 ms a fiftieth (`tvsctl bench --only mcu_io`: README).
@@ -129,19 +129,16 @@ SWITCH_INTERVAL_S = 0.001
 
 def _io_side_realtime() -> None:
     """--realtime: the event loop (the API, recordings, points) and the threads started after it
-    (IMU reader, recorder: new threads inherit it) at nice IO_NICE, ahead of normal-priority load
-    (a browser, a compile, CPU hogs) but NOT on SCHED_FIFO: under an API flood the loop is
-    CPU-bound, and a CPU-bound SCHED_FIFO thread uses up the kernel's real-time budget
-    (sched_rt_runtime_us, 95 % of each second), after which the kernel throttles every SCHED_FIFO
-    thread for the rest of the second — the control thread and the MCU link's heartbeats with it
-    (50 ms without a heartbeat: the firmware's watchdog cuts). The threads that must be on time ask
-    for SCHED_FIFO themselves and use little CPU: the control thread (80), the MCU link's I/O
-    thread (tvsd.daemon.drive_link)."""
+    (IMU reader, recorder, SIL devices: new threads inherit the policy) on SCHED_FIFO below the
+    control thread, so that normal-priority load (a browser, a compile, CPU hogs) cannot hold
+    them off the CPU while they hold the GIL. The MCU link's I/O thread (heartbeats, state
+    frames) asks for its own priority, above this one (tvsd.daemon.drive_link). The kernel's RT
+    throttling (sched_rt_runtime_us) still leaves normal tasks 5 % of each CPU."""
     try:
-        os.setpriority(os.PRIO_PROCESS, 0, IO_NICE)  # Linux: the calling thread only
-        print(f"tvsd: event loop, I/O threads at nice {IO_NICE}", file=sys.stderr)
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(IO_PRIORITY))
+        print(f"tvsd: event loop, I/O threads SCHED_FIFO granted (priority {IO_PRIORITY})", file=sys.stderr)
     except OSError as exc:
-        print(f"tvsd: event loop nice {IO_NICE} refused: {exc.strerror or exc}", file=sys.stderr)
+        print(f"tvsd: event loop SCHED_FIFO refused: {exc.strerror or exc}", file=sys.stderr)
 
 
 async def _serve(args: argparse.Namespace, cfg: Config, config_text: str) -> int:
