@@ -188,7 +188,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--realtime", action="store_true", help=f"SCHED_FIFO {SIL_PRIORITY} for the process")
     args = p.parse_args(argv)
     die_with_parent()
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C at the terminal is the daemon's to handle
+    # A Ctrl-C at the terminal, `systemctl stop` (SIGTERM to the whole cgroup) and `timeout` (to the
+    # process group) reach this process too: the daemon's to handle. It ramps the motor down and
+    # closes the devices in order; this process ends with it (the control socket's end, or
+    # PR_SET_PDEATHSIG). Ending here first made the daemon's orderly stop raise link and IMU faults.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     if args.realtime:
         # The devices stand in for hardware, which has its own CPU: a CPU hog must not slow the
         # simulated world. Below the daemon's threads: at 60 (above its loop) the soak's daemon
