@@ -65,6 +65,7 @@ class GLS:
     se: np.ndarray
     rss: float
     n: int
+    cov: np.ndarray  # of theta: sums of coefficients (a₀ + a₁) need the off-diagonal terms
 
 
 def gls(
@@ -79,10 +80,10 @@ def gls(
     n, k = Xw.shape
     try:
         cov = rss / max(n - k, 1) * np.linalg.inv(Xw.T @ Xw)
-        se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     except np.linalg.LinAlgError:
-        se = np.full(k, math.nan)
-    return GLS(theta, se, rss, n)
+        cov = np.full((k, k), math.nan)
+    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return GLS(theta, se, rss, n, cov)
 
 
 def whitened_rss(y: np.ndarray, X: np.ndarray, theta: np.ndarray, ar: np.ndarray, sel: np.ndarray) -> float:

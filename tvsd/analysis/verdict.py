@@ -143,7 +143,7 @@ def name_cause(
 
         k = design.X.shape[1]
         fin = C.gls(design.y, X_fin, out.ar, out.keep)
-        params, err = _physical(design, fin.theta[:k], fin.se[:k], data.b_u, data.b_omega)
+        params, err = _physical(design, fin.theta[:k], fin.cov[:k, :k], data.b_u, data.b_omega)
     reason = sense.baseline_problem(params, err)
     if chosen is not None and reason is None:
         problem = sense.effect_problem(cause, effect_out, u, params["time_constant_s"], data.sample_rate_hz)
@@ -224,14 +224,11 @@ def heldout_speed(
     base = C.gls(design.y, design.X, out.ar, out.keep, rows)
     extended = cause not in ("none", "model_mismatch", "colored_noise")
     ext = C.gls(design.y, verdict.X, out.ar, out.keep, rows) if extended else base
-    pb, _ = _physical(design, base.theta, base.se, data.b_u, data.b_omega)
-    pe, _ = _physical(
-        design, ext.theta[: design.X.shape[1]], ext.se[: design.X.shape[1]], data.b_u, data.b_omega
-    )
+    pb, _ = _physical(design, base.theta, base.cov, data.b_u, data.b_omega)
+    k = design.X.shape[1]
+    pe, _ = _physical(design, ext.theta[:k], ext.cov[:k, :k], data.b_u, data.b_omega)
     mask = np.ones(len(target.t), dtype=bool) if heldout is not None else target.t >= split
     measured = target.speed if target.speed is not None else prepare(target, band).speed
-
-    k = design.X.shape[1]
 
     def command(th: np.ndarray, u: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
         """The command as the fitted input map applies it (timing, and an input-gain drift)."""
