@@ -130,6 +130,11 @@ def name_cause(
         ok = above and not dissolved
         if ok and t.cause == "drift" and t.coef is not None:
             ok = _drift_agrees(design, out, str(effect["parameter"]), float(t.coef[0]))
+        if ok and chosen is None:
+            # Out of sample: fitted on four fifths, the extension must predict the fifth left out
+            # better than the baseline (summed over the five) — what misfit of one stretch, or a
+            # scan's luck, explains does not carry over.
+            ok = C.heldout_gain(design, out, X_ext) > 0.0
         ranked.append(Scored(t.cause, effect, t.z, t.p, ok and chosen is None))
         if ok and chosen is None:
             chosen = (t.cause, effect, X_ext, u_app)
