@@ -171,13 +171,15 @@ def diagnose(
     from tvsd.analysis.verdict import name_cause  # the per-cause translation (effects, checks)
 
     say("naming the cause and checking it makes physical sense")
-    verdict = name_cause(design, out, fit, params, err, data)
+    verdict = name_cause(design, out, fit, params, err, data, drive_identifiable=note is None)
     say("testing the noise colour")
     rate_rows = 1.0 / float(np.median(np.diff(prep.t_rows)))
     resid = np.where(out.keep, verdict.residual, 0.0)
     noise = analyse(resid, rate_rows, params["J"] if params["J"] > 0 else 1.0, prep.band.cutoff_hz)
     ranked = verdict.ranked
-    colour_sig = noise.colour_p < COLOUR_P
+    # Closed loop without an excited reference: the feedback shapes the equation's residual (the
+    # command answers its noise), so its colour says nothing of the vibration's; not a candidate.
+    colour_sig = noise.colour_p < COLOUR_P and note is None
     ranked.append(
         Scored("colored_noise", {"tau_s": noise.tau_s}, noise.colour_lr, noise.colour_p, colour_sig)
     )

@@ -95,7 +95,10 @@ def name_cause(
     params: dict[str, float],
     err: dict[str, float],
     data: Dataset,
+    drive_identifiable: bool = True,
 ) -> Verdict:
+    """`drive_identifiable` False (closed loop, constant reference): the command answers the
+    speed's noise, so J, kv, τc come out biased by the feedback and are not judged."""
     from tvsd.analysis.doctor import Scored
 
     J = params["J"]
@@ -149,7 +152,7 @@ def name_cause(
         k = design.X.shape[1]
         fin = C.gls(design.y, X_fin, out.ar, out.keep)
         params, err = _physical(design, fin.theta[:k], fin.cov[:k, :k], data.b_u, data.b_omega)
-    reason = sense.baseline_problem(params, err)
+    reason = sense.baseline_problem(params, err) if drive_identifiable else None
     if chosen is not None and reason is None:
         problem = sense.effect_problem(cause, effect_out, u, params["time_constant_s"], data.sample_rate_hz)
         if problem is not None:
