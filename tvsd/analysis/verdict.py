@@ -137,7 +137,10 @@ def name_cause(
             # Out of sample: fitted on four fifths, the extension must predict the fifth left out
             # better than the baseline (summed over the five) — what misfit of one stretch, or a
             # scan's luck, explains does not carry over.
-            ok = C.heldout_gain(design, out, X_ext) > 0.0
+            # The model checked is the one the decision tested (baseline + the winning block),
+            # not the structural refit, which can trade differently with friction.
+            X_cv = X_ext if t.option is None else np.column_stack([design.X, t.option.block])
+            ok = C.heldout_gain(design, out, X_cv) > 0.0
         ranked.append(Scored(t.cause, effect, t.z, t.p, ok and chosen is None))
         if ok and chosen is None:
             chosen = (t.cause, effect, X_ext, u_app)
