@@ -84,12 +84,19 @@ class Diagnosis:
 
 
 def _physical(
-    design: D.Design, theta: np.ndarray, se: np.ndarray, b_u: float, b_omega: float
+    design: D.Design, theta: np.ndarray, cov: np.ndarray, b_u: float, b_omega: float
 ) -> tuple[dict[str, float], dict[str, float]]:
-    """Accelerations per unit column → the paper's parameters: J from the drive's input gain."""
+    """Accelerations per unit column → the paper's parameters: J from the drive's input gain.
+
+    The input gain is a₀ + a₁: the two columns (u now and one sample later) are nearly collinear,
+    so their coefficients are strongly anti-correlated and the sum's standard error is far below
+    either one's — it needs the covariance, not the two standard errors."""
     v = dict(zip(design.names, theta, strict=False))
+    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     s = dict(zip(design.names, se, strict=False))
     a = v["a0"] + v["a1"]
+    i0, i1 = design.names.index("a0"), design.names.index("a1")
+    se_a = math.sqrt(max(float(cov[i0, i0] + cov[i1, i1] + 2 * cov[i0, i1]), 0.0))
     J = b_u / a if a != 0 else math.nan
     p = {
         "input_gain": a,
@@ -105,8 +112,8 @@ def _physical(
     err = {
         "damping": abs(s["c"] * J),
         "tau_c": abs(s["f"] * J),
-        "J": abs(J) * math.hypot(s["a0"], s["a1"]) / abs(a),
-        "input_gain": math.hypot(s["a0"], s["a1"]),
+        "J": abs(J) * se_a / abs(a) if a != 0 else math.inf,
+        "input_gain": se_a,
     }
     return p, err
 
@@ -164,17 +171,19 @@ def diagnose(
     say("testing every cause against the bootstrap null of the fitted baseline")
     out = C.test_all(design, seed=seed)
     fit = C.gls(design.y, design.X, out.ar, out.keep)
-    params, err = _physical(design, fit.theta, fit.se, data.b_u, data.b_omega)
+    params, err = _physical(design, fit.theta, fit.cov, data.b_u, data.b_omega)
     from tvsd.analysis.verdict import name_cause  # the per-cause translation (effects, checks)
 
     say("naming the cause and checking it makes physical sense")
-    verdict = name_cause(design, out, fit, params, err, data)
+    verdict = name_cause(design, out, fit, params, err, data, drive_identifiable=note is None)
     say("testing the noise colour")
     rate_rows = 1.0 / float(np.median(np.diff(prep.t_rows)))
     resid = np.where(out.keep, instrument.residual(measured, design, verdict), 0.0)
     noise = analyse(resid, rate_rows, params["J"] if params["J"] > 0 else 1.0, prep.band.cutoff_hz)
     ranked = verdict.ranked
-    colour_sig = noise.colour_p < COLOUR_P
+    # Closed loop without an excited reference: the feedback shapes the equation's residual (the
+    # command answers its noise), so its colour says nothing of the vibration's; not a candidate.
+    colour_sig = noise.colour_p < COLOUR_P and note is None
     ranked.append(
         Scored("colored_noise", {"tau_s": noise.tau_s}, noise.colour_lr, noise.colour_p, colour_sig)
     )
