@@ -17,9 +17,9 @@ SECONDS = 20.0
 @pytest.mark.slow
 @pytest.mark.xfail(
     strict=False,
-    reason="issue 13: the MCU link's heartbeats still share the event loop with the API and the SIL "
-    "devices share the daemon's process (branches iothread, silproc); on main a 20 s soak raised "
-    "39 firmware watchdog expiries and 75 faults. The lead re-checks after merging them.",
+    reason="issue 13, open: with the MCU link on its own thread and the SIL devices in their own "
+    "process, 50 polling clients + 500-call batches beside the hogs still give dozens of firmware "
+    "watchdog expiries in 20 s (the link's I/O thread waits for the GIL: README, Soak).",
 )
 def test_a_short_soak_under_cpu_hogs_has_no_fault_and_no_watchdog_expiry() -> None:
     """`soak(20 s)`: the SIL daemon at 25 rev/s scanning and recording, a normal-priority CPU hog
@@ -43,3 +43,19 @@ def test_a_short_soak_under_cpu_hogs_has_no_fault_and_no_watchdog_expiry() -> No
     assert res["soak_state_end"] == "scanning"
     assert res["soak_recordings_exported"] == res["soak_recordings"], res["soak_export_errors"]
     assert res["soak_batches"] > 0 and res["soak_status_calls_per_s"] > 0  # the load did run
+
+
+@pytest.mark.slow
+def test_a_short_soak_under_cpu_hogs_alone_has_no_fault_and_no_watchdog_expiry() -> None:
+    """`soak(20 s, no clients, no batches)`: the SIL daemon (`--realtime`, as `make run` starts it)
+    at 25 rev/s scanning and recording beside a normal-priority CPU hog on every core: the busy
+    machine of issue 13's first report, where `make run` latched "MCU state frames stopped" within
+    1–3 s. Tolerance: none, as above — a fault or a watchdog expiry with nothing injected is a bug
+    whatever the load.
+    """
+    res = soak(SECONDS, clients=0, batches=False)
+    print(json.dumps(res, indent=1))
+    assert res["soak_watchdog_expiries"] == 0, res["soak_fault_counts"]
+    assert res["soak_faults"] == 0, res["soak_fault_counts"]
+    assert res["soak_state_end"] == "scanning"
+    assert res["soak_recordings_exported"] == res["soak_recordings"], res["soak_export_errors"]

@@ -130,8 +130,10 @@ def soak(
     record_every_s: float | None = None,
     progress: Callable[[float], None] | None = None,
     daemon: list[str] | None = None,
+    batches: bool = True,
 ) -> dict[str, Any]:
     """Run the soak for `seconds` under load; its figures and verdicts (see the module's doc).
+    `clients=0, batches=False`: the CPU hogs alone (a busy machine, no API load).
     `daemon`: the command that starts tvsd (its options are appended; default `python -m
     tvsd.daemon.main`): scripts/loop_profile.py runs it under its event-loop profiler."""
     from tvsd.control import latency as L
@@ -169,7 +171,7 @@ def soak(
             while (now := time.monotonic()) < t0 + seconds:
                 if tvsd.proc.poll() is not None:
                     raise tvsd.fail(f"tvsd exited with status {tvsd.proc.returncode} during the soak")
-                if now >= next_batch:
+                if batches and now >= next_batch:
                     batch(tvsd.sock, load)
                     next_batch += BATCH_EVERY_S
                 if now >= next_rec and now + every / 2 < t0 + seconds:
