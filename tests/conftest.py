@@ -178,3 +178,17 @@ def sock_path(tmp_path: Path):  # -> Iterator[Path]
         return
     with tempfile.TemporaryDirectory(prefix="tvs") as short:
         yield Path(short) / "tvsd.sock"
+
+
+@pytest.fixture
+def vmcu() -> Any:
+    """The firmware's core built as a host library (tvsd.sim.virtual_mcu), on a pty; skipped with
+    the reason where it cannot be built."""
+    from tvsd.sim import virtual_mcu as vm
+
+    try:
+        v = vm.VirtualMcu()
+    except vm.VirtualMcuError as exc:
+        pytest.skip(f"virtual MCU unavailable: {exc}")
+    with v:
+        yield v

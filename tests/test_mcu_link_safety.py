@@ -30,16 +30,6 @@ STATE_DIV = 10  # a state frame every 1 ms
 
 
 @pytest.fixture
-def vmcu() -> Iterator[vm.VirtualMcu]:
-    try:
-        v = vm.VirtualMcu()
-    except vm.VirtualMcuError as exc:
-        pytest.skip(f"virtual MCU unavailable: {exc}")
-    with v:
-        yield v
-
-
-@pytest.fixture
 def runner(setup: object) -> Iterator[Runner]:
     r = Runner(setup, sil=False)  # type: ignore[arg-type]
     r.start()

@@ -12,7 +12,6 @@ import itertools
 import json
 import math
 import time
-from collections.abc import Iterator
 
 import pytest
 from conftest import until
@@ -23,16 +22,6 @@ from tvsd.hw.mcu.link import FaultEvent, McuLink, McuSettings, PulseEvent, State
 from tvsd.hw.mcu.spec import load_spec
 from tvsd.hw.mcu.steppers import AxisSettings, Steppers, StepperSettings
 from tvsd.sim import virtual_mcu as vm
-
-
-@pytest.fixture
-def vmcu() -> Iterator[vm.VirtualMcu]:
-    try:
-        v = vm.VirtualMcu()
-    except vm.VirtualMcuError as exc:
-        pytest.skip(f"virtual MCU unavailable: {exc}")
-    with v:
-        yield v
 
 
 def test_identify_matches_the_firmware(vmcu: vm.VirtualMcu) -> None:
