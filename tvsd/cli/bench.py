@@ -150,24 +150,23 @@ def _words(value: Any) -> Any:
     return value
 
 
-def _positive_int(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number of frames >= 1, got {text!r}")
-    return n
+def _whole(low: int, high: int, what: str) -> Callable[[str], int]:
+    """An argparse type: a whole number in [low, high], else one line naming what was given."""
+
+    def parse(text: str) -> int:
+        try:
+            n = int(text)
+        except ValueError:
+            n = low - 1
+        if not low <= n <= high:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return n
+
+    return parse
 
 
-def _clients(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if not 1 <= n <= 1000:
-        raise argparse.ArgumentTypeError(f"expected a number of clients 1..1000, got {text!r}")
-    return n
+_positive_int = _whole(1, 2**62, "a whole number of frames >= 1")
+_clients = _whole(1, 1000, "a number of clients 1..1000")
 
 
 def _positive_float(text: str) -> float:
