@@ -67,6 +67,9 @@ class DaemonSettings:
     )
     rpc_max_concurrent: int = option(8, doc="a batch's requests in flight at once", ge=1, le=1000)
     rpc_max_clients: int = option(64, doc="connections at once", ge=1, le=10000)
+    rpc_rate_total_per_s: float = option(
+        400.0, doc="requests per second from all connections together (faster: each is slowed)", gt=0, le=1e6
+    )
     stale_after_ms: float = option(
         100.0,
         doc="status marks rps and the loop's measurement stale when the newest measurement is older",

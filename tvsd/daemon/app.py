@@ -106,7 +106,7 @@ class Daemon:
         d = cfg.daemon
         limits = Limits(
             d.rpc_max_batch, d.rpc_max_reply_bytes, d.rpc_rate_per_s, d.rpc_burst,
-            d.rpc_max_concurrent, d.rpc_max_clients,
+            d.rpc_max_concurrent, d.rpc_max_clients, d.rpc_rate_total_per_s,
         )  # fmt: skip
         self.rpc = RpcServer(socket_path, self.api.methods(), limits=limits)
         self.can = CanBridge(cfg.can, self.api.can_command)

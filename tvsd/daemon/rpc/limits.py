@@ -20,13 +20,18 @@ class Limits:
     burst: int = 50  # requests a connection may send at once before the rate applies
     max_concurrent: int = 8  # a batch's requests in flight at once
     max_clients: int = 64  # connections at once
+    # requests per second from all connections together: with 64 clients at 50/s each the event
+    # loop would be busy all the time, and the MCU link's I/O thread waits for its GIL
+    rate_total_per_s: float = 400.0
 
     def __post_init__(self) -> None:
         if self.burst < self.max_batch:
             raise ValueError(f"burst {self.burst} must be at least max_batch {self.max_batch}")
 
 
-UNLIMITED = Limits(max_batch=1000, max_reply_bytes=1 << 30, rate_per_s=1e9, burst=10**9, max_clients=10**4)
+UNLIMITED = Limits(max_batch=1000, max_reply_bytes=1 << 30, rate_per_s=1e9, burst=10**9, max_clients=10**4,
+    rate_total_per_s=1e12,
+)
 
 
 def limit_error(name: str, value: float, seen: float, text: str) -> RpcError:

@@ -76,6 +76,7 @@ class RpcServer:
         limits: Limits | None = None,
     ) -> None:
         self.limits = limits if limits is not None else Limits()
+        self._all_clients = TokenBucket(self.limits.rate_total_per_s, self.limits.burst)
         self.dispatch = Dispatcher(methods, self.limits, topics)
         self.path = Path(path)
         self.max_message = max_message
@@ -229,12 +230,15 @@ class RpcServer:
             client.close()
 
     async def _throttle(self, client: _Client, line: bytes) -> None:
-        """Pause this connection (only) while it is over its request rate; a batch counts each
-        member (estimated from the line, capped at max_batch, before parsing it)."""
+        """Pause this connection (only) while it is over its request rate, or while all of them
+        together are over theirs (each waits its turn: the shared bucket's debt orders them); a
+        batch counts each member (estimated from the line, capped at max_batch, before parsing
+        it). Paused, a connection is not read: the API's load on the event loop is bounded
+        whatever the number of clients."""
         n = 1
         if line.lstrip()[:1] == b"[":
             n = max(1, min(self.limits.max_batch, line.count(b'"method"')))
-        pause = client.bucket.wait(n)
+        pause = max(client.bucket.wait(n), self._all_clients.wait(n))
         if pause > 0:
             self._counts["throttled"] += 1
             await asyncio.sleep(pause)
