@@ -77,7 +77,7 @@ def test_key_settings():
     s = _settings(UNIT.read_text())
     expect = {
         "Service.Type": ["notify"],
-        "Service.ExecStart": [f"{EXEC} --config /etc/tvsd/tvsd.yaml"],
+        "Service.ExecStart": [f"{EXEC} --realtime --config /etc/tvsd/tvsd.yaml"],
         "Service.WatchdogSec": ["2s"],
         "Service.Restart": ["on-failure"],
         "Service.User": ["tvsd"],
