@@ -12,6 +12,8 @@ The shipped fail-safe times are used (watchdog 50 ms, link loss 50 ms, states ev
 from __future__ import annotations
 
 import asyncio
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 
@@ -19,6 +21,8 @@ import pytest
 from conftest import until
 
 from tvsd.control.runner import Runner
+from tvsd.daemon.drive_link import IO_THREAD_PRIORITY
+from tvsd.daemon.main import SWITCH_INTERVAL_S
 from tvsd.hw.mcu.link import FaultEvent, McuLink, McuSettings, StateSample
 from tvsd.hw.mcu.receiving import EVENT_QUEUE, Receiver
 from tvsd.hw.mcu.spec import load_spec
@@ -52,15 +56,16 @@ class Seen:
         return [f for f in self.faults if f.name == "watchdog_expired"]
 
 
-async def connect(vmcu: vm.VirtualMcu, runner: Runner, seen: Seen) -> McuLink:
+async def connect(port: str, runner: Runner, seen: Seen) -> McuLink:
     await until(lambda: runner.is_running, 60.0, "the control kernel running")
-    settings = McuSettings(port=vmcu.port, watchdog_ms=WATCHDOG_MS, link_lost_ms=50.0)
+    settings = McuSettings(port=port, watchdog_ms=WATCHDOG_MS, link_lost_ms=50.0)
     link = McuLink(
         settings,
         on_state=seen.state,
         on_fault=seen.faults.append,
         on_link=seen.links.append,
         liveness=lambda: runner.ticks,
+        io_priority=IO_THREAD_PRIORITY,  # as tvsd --realtime (the scanner's unit) runs it; refused: said
     )
     await link.__aenter__()
     link.send_config(watchdog_ms=WATCHDOG_MS, state_div=STATE_DIV, max_on_ms=0)
@@ -68,9 +73,47 @@ async def connect(vmcu: vm.VirtualMcu, runner: Runner, seen: Seen) -> McuLink:
     return link
 
 
+# The virtual MCU in a process of its own, as `tvsd --sil` runs it: in this process its pump thread
+# would share the GIL with the blocked event loop under test, and a pure-Python block held it off
+# long enough for the emulated clock to jump past the watchdog (a fresh-clone CI run) — the
+# emulator starved, not the link.
+VMCU_CHILD = """
+import sys
+from tvsd.sim import virtual_mcu as vm
+try:
+    v = vm.VirtualMcu()
+except vm.VirtualMcuError as exc:
+    print("unavailable:", exc, flush=True)
+    sys.exit(0)
+with v:
+    print(v.port, flush=True)
+    sys.stdin.read()
+"""
+
+
+@pytest.fixture
+def vmcu_port() -> Iterator[str]:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", VMCU_CHILD], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    assert proc.stdout is not None and proc.stdin is not None
+    line = proc.stdout.readline().strip()
+    if not line.startswith("/dev/"):
+        proc.wait(10)
+        pytest.skip(f"virtual MCU {line or 'did not start'}")
+    try:
+        yield line
+    finally:
+        proc.stdin.close()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
 @pytest.mark.parametrize("block", ["sleep", "busy"])
 def test_a_blocked_event_loop_starves_neither_heartbeat_nor_states(
-    vmcu: vm.VirtualMcu, runner: Runner, block: str
+    vmcu_port: str, runner: Runner, block: str
 ) -> None:
     """The loop blocked 2 × watchdog_ms. Heartbeats are due every watchdog_ms / 4 (12.5 ms): the
     longest gap between two must stay under the watchdog, and the firmware must report no expiry;
@@ -80,7 +123,7 @@ def test_a_blocked_event_loop_starves_neither_heartbeat_nor_states(
 
     async def main() -> None:
         seen = Seen()
-        link = await connect(vmcu, runner, seen)
+        link = await connect(vmcu_port, runner, seen)
         try:
             await asyncio.sleep(0.2)
             link.reset_peaks()  # the block's, not the start-up's
@@ -107,7 +150,12 @@ def test_a_blocked_event_loop_starves_neither_heartbeat_nor_states(
         assert st.link_losses == 0 and False not in seen.links
         assert max(gaps) < LINK_TIMEOUT_S, gaps
 
-    asyncio.run(main())
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(SWITCH_INTERVAL_S)  # the daemon's (tvsd.daemon.main)
+    try:
+        asyncio.run(main())
+    finally:
+        sys.setswitchinterval(switch)
 
 
 def test_a_stopped_kernel_stops_the_heartbeat_and_the_firmware_cuts(
@@ -121,7 +169,7 @@ def test_a_stopped_kernel_stops_the_heartbeat_and_the_firmware_cuts(
 
     async def main() -> None:
         seen = Seen()
-        link = await connect(vmcu, runner, seen)
+        link = await connect(vmcu.port, runner, seen)
         try:
             assert link.send_pwm(0.3)
             await until(lambda: vmcu.pwm_duty > 0.25, 2.0, "the firmware taking the duty")
