@@ -21,8 +21,8 @@ import pytest
 from conftest import until
 
 from tvsd.control.runner import Runner
-from tvsd.daemon.drive_link import IO_THREAD_PRIORITY
 from tvsd.daemon.main import SWITCH_INTERVAL_S
+from tvsd.hw.mcu.io_thread import IO_THREAD_PRIORITY
 from tvsd.hw.mcu.link import FaultEvent, McuLink, McuSettings, StateSample
 from tvsd.hw.mcu.receiving import EVENT_QUEUE, Receiver
 from tvsd.hw.mcu.spec import load_spec

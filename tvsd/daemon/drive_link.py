@@ -40,6 +40,7 @@ import numpy as np
 from tvsd.config import Config
 from tvsd.control.runner import Runner
 from tvsd.errors import ConfigError, DeviceError, UsageError
+from tvsd.hw.mcu.io_thread import IO_THREAD_PRIORITY
 from tvsd.hw.mcu.link import FaultEvent, McuLink, PulseEvent, StateSample
 from tvsd.hw.mcu.spec import CONTROL_TICK_HZ
 from tvsd.hw.mcu.steppers import Steppers
@@ -52,7 +53,6 @@ SENT_HISTORY_S = 0.8  # PWM frames kept, in s of exchanges (the point stream loo
 SENT_SLACK = 64  # of them not read back: the I/O thread may be overwriting them meanwhile
 SIL_TARGET_RANGE_M = 2.0  # the SIL scene: a surface 2 m from the PL (tvsd/sim/scene.py)
 SIL_FAULTS = ("link_loss", "link_restore")
-IO_THREAD_PRIORITY = 60  # SCHED_FIFO of the link's I/O thread under --realtime
 
 
 def spot_beta(cfg: Config, phi: float, gamma: float) -> float:

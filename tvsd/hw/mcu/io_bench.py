@@ -21,11 +21,11 @@ import time
 import tty
 from typing import Any
 
+from tvsd.hw.mcu.io_thread import IO_THREAD_PRIORITY
 from tvsd.hw.mcu.link import McuLink
 from tvsd.hw.mcu.settings import McuSettings
 
 REPLY_BYTES = 1 << 20  # daemon.rpc_max_reply_bytes' default
-IO_PRIORITY = 60  # tvsd.daemon.drive_link.IO_THREAD_PRIORITY (hw does not import daemon)
 
 
 def _big_reply() -> list[dict[str, Any]]:
@@ -57,7 +57,7 @@ async def _measure(seconds: float) -> dict[str, Any]:
     # for the daemon's SCHED_FIFO 60 too
     fifo = os.sched_getscheduler(0) == os.SCHED_FIFO
     settings = McuSettings(port=os.ttyname(slave), watchdog_ms=50, link_lost_ms=10_000)
-    link = McuLink(settings, io_priority=IO_PRIORITY if fifo else None)
+    link = McuLink(settings, io_priority=IO_THREAD_PRIORITY if fifo else None)
     reply = _big_reply()
     out: dict[str, Any] = {"mcu_io_reply_bytes": len(json.dumps(reply)), "mcu_io_fifo": fifo}
     default = sys.getswitchinterval()

@@ -39,6 +39,9 @@ from tvsd.hw.mcu.settings import McuSettings
 log = logging.getLogger("tvsd.hw.mcu.link")  # the link's log, whichever part writes it
 
 READ_CHUNK = 65536
+# SCHED_FIFO priority the daemon asks for this thread under --realtime: below the control thread
+# (80), above the event loop (40)
+IO_THREAD_PRIORITY = 60
 IDLE_WAKE_S = 0.05  # the longest select: a stop request or a changed schedule is never later
 
 
