@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 from tvsd.config import Gains
 from tvsd.control.conditions import check_gains, warnings
 from tvsd.daemon.identify import IdentifyRun, settings_for
-from tvsd.daemon.rpc import DEVICE_ERROR, INVALID_PARAMS, STATE_ERROR, RpcError
+from tvsd.daemon.rpc import DEVICE_ERROR, INVALID_PARAMS, STATE_ERROR, Encoded, RpcError
 from tvsd.daemon.state import DaemonState
 from tvsd.errors import TvsdError, UsageError
 from tvsd.hw.can.frames import Ack, Command, CommandCode, Reason
@@ -39,7 +39,7 @@ def _rpc_error(exc: TvsdError) -> RpcError:
 class Api:
     def __init__(self, daemon: Daemon) -> None:
         self.d = daemon
-        self._status: tuple[float, dict[str, Any]] | None = None  # (monotonic, the status) reused
+        self._status: tuple[float, Encoded] | None = None  # (monotonic, the status) reused
 
     def methods(self) -> dict[str, Any]:
         return {
@@ -58,12 +58,13 @@ class Api:
         if self.d.state == DaemonState.STOPPING:
             raise RpcError(STATE_ERROR, "the daemon is stopping: the aperture ramps down; start it again")
 
-    async def api_status(self) -> dict[str, Any]:
+    async def api_status(self) -> Encoded:
         # Built at most once per STATUS_REUSE_S: 50 clients (or a batch of 50) asking at once
         # cost one build (~1-4 ms), not 50; `measurement_age_ms` and `stale` say how fresh it is.
+        # Checked and encoded once per build too (Encoded): each reply splices the text in.
         now = time.monotonic()
         if self._status is None or now - self._status[0] > STATUS_REUSE_S:
-            self._status = (now, self.d.status().to_json())
+            self._status = (now, Encoded(self.d.status().to_json()))
         return self._status[1]
 
     async def api_speed(self, rps: float) -> dict[str, Any]:

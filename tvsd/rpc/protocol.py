@@ -306,8 +306,26 @@ def parse_request(msg: object) -> Request:
 # --- replies -------------------------------------------------------------------------------------
 
 
+class Encoded:
+    """A result checked and encoded once, answered as it is: `dumps` splices its text into each
+    reply. For what many requests share (the status: 350 calls/s in the soak, one build per 20 ms),
+    `clean` and the JSON encoder then run once per build instead of once per reply (they held the
+    event loop ~0.3 ms a reply, ~13 % of it in the soak)."""
+
+    __slots__ = ("text",)
+
+    def __init__(self, obj: object) -> None:
+        self.text: bytes = _compact(clean(obj))
+
+    def decoded(self) -> Any:
+        """The value again (tests, in-process callers)."""
+        return json.loads(self.text)
+
+
 def clean(obj: Any) -> Any:
     """Something json.dumps can write: non-finite floats → null, dataclasses, numpy scalars/arrays."""
+    if isinstance(obj, Encoded):
+        return obj  # checked when it was made
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else None
     if isinstance(obj, (str, int, bool)) or obj is None:
@@ -325,9 +343,30 @@ def clean(obj: Any) -> Any:
     raise TypeError(f"{type(obj).__name__} is not JSON-serialisable")
 
 
+def _compact(obj: object) -> bytes:
+    return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
+
+
+def _spliced(reply: object) -> bool:
+    return isinstance(reply, dict) and isinstance(reply.get("result"), Encoded)
+
+
+def _encode(obj: object) -> bytes:
+    """Compact JSON with any `Encoded` result of a reply (or of a batch's replies) spliced in."""
+    if isinstance(obj, Encoded):
+        return obj.text
+    if _spliced(obj):
+        assert isinstance(obj, dict)
+        head = _compact({k: v for k, v in obj.items() if k != "result"})
+        return head[:-1] + (b"," if len(head) > 2 else b"") + b'"result":' + obj["result"].text + b"}"
+    if isinstance(obj, list) and any(_spliced(r) for r in obj):
+        return b"[" + b",".join(_encode(r) for r in obj) + b"]"
+    return _compact(obj)
+
+
 def dumps(obj: object) -> bytes:
-    """One line of compact JSON (NaN refused: `clean` first)."""
-    return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode() + b"\n"
+    """One line of compact JSON (NaN refused: `clean` first; `Encoded` results spliced in)."""
+    return _encode(obj) + b"\n"
 
 
 def result_reply(req_id: object, result: object) -> dict[str, object]:

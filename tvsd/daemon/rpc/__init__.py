@@ -37,6 +37,7 @@ from tvsd.rpc.protocol import (
     METHOD_NOT_FOUND,
     PARSE_ERROR,
     STATE_ERROR,
+    Encoded,
     Method,
     RpcError,
 )
@@ -53,6 +54,7 @@ __all__ = [
     "STATE_ERROR",
     "UNLIMITED",
     "DaemonAlreadyRunning",
+    "Encoded",
     "Limits",
     "Method",
     "RpcError",
