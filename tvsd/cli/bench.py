@@ -28,7 +28,12 @@ def _sim() -> dict[str, Any]:
 def _scan() -> dict[str, Any]:
     from tvsd.sim import scan_bench as bench
 
-    return {**bench.bench_triangulation(), **bench.bench_pipeline(), **bench.bench_latency()}
+    return {
+        **bench.bench_triangulation(),
+        **bench.bench_pipeline(),
+        **bench.bench_latency(),
+        **bench.bench_stream(),
+    }
 
 
 def _imu() -> dict[str, Any]:

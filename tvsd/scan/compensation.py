@@ -16,6 +16,7 @@ is left to the fit; so are the means, which are removed. λ matters for the pape
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -91,7 +92,7 @@ class KnownAccel:
         h = np.where(small, s_ * s_ * (0.5 - x / 6.0 + x * x / 24.0), (s_ - g) / np.where(small, 1.0, lam))
         return e, g, h
 
-    @property
+    @cached_property
     def total(self) -> F64:
         return self.imu + self.drive
 
@@ -104,7 +105,21 @@ class KnownAccel:
         return (t_ >= self.t0) & (t_ < self.t_end)
 
     def _grid(self, a: F64) -> tuple[F64, F64]:
-        """Speed and angle at the grid points from t0 (at rest), exact for piecewise-constant a."""
+        """Speed and angle at the grid points from t0 (at rest), exact for piecewise-constant a.
+
+        Kept for each series it was asked for (by identity: `total`, `imu`, `drive`): one point's
+        β and σ ask for the same grids up to six times (the point stream computes them on the
+        event loop)."""
+        memo: dict[int, tuple[F64, F64, F64]] = self.__dict__.setdefault("_grids", {})
+        hit = memo.get(id(a))
+        if hit is not None and hit[0] is a:
+            return hit[1], hit[2]
+        w, p = self._grid_of(a)
+        if a is self.imu or a is self.drive or a is self.__dict__.get("total"):
+            memo[id(a)] = (a, w, p)
+        return w, p
+
+    def _grid_of(self, a: F64) -> tuple[F64, F64]:
         e, g, h = (float(v) for v in self._gains(self.dt))
         if self.damping == 0.0:
             w = np.concatenate([[0.0], np.cumsum(a) * g])

@@ -88,9 +88,11 @@ def clean(kind: NDArray[np.integer], ticks: NDArray[np.integer], tick_s: float) 
         zt = zt[keep]
     rev = np.arange(len(zt), dtype=np.int64)
     missed = 0
+    nominal = np.zeros(0)
     if len(zt) >= 3:
         dt = np.diff(zt)
-        n = np.maximum(np.rint(dt / _nominal_period(dt)).astype(np.int64), 1)
+        nominal = _nominal_period(dt)
+        n = np.maximum(np.rint(dt / nominal).astype(np.int64), 1)
         missed = int(np.sum(n - 1))
         rev = np.concatenate([[0], np.cumsum(n)])
 
@@ -102,7 +104,7 @@ def clean(kind: NDArray[np.integer], ticks: NDArray[np.integer], tick_s: float) 
         idx_c = np.clip(idx, 0, len(zt) - 1)
         nxt = np.minimum(idx_c + 1, len(zt) - 1)
         closed = (idx >= 0) & (idx < len(zt) - 1) & (rev[nxt] - rev[idx_c] == 1)
-        last_period = float(_nominal_period(np.diff(zt))[-1])
+        last_period = float(nominal[-1])
         open_ok = (idx == len(zt) - 1) & (ot - zt[-1] < last_period)
         span_ok = closed | open_ok
     in_gap = int(np.count_nonzero(~span_ok))

@@ -101,3 +101,52 @@ def bench_latency(seconds: float = 3.0, rps: float = 20.0) -> dict[str, float]:
         out[f"scan_latency_{estimator}_compute_p50_ms"] = 1e3 * float(np.percentile(compute, 50))
         out[f"scan_latency_{estimator}_compute_p99_ms"] = 1e3 * float(np.percentile(compute, 99))
     return out
+
+
+def bench_stream(seconds: float = 4.0, rps: float = 25.0, batch: int = 20) -> dict[str, float]:
+    """What the daemon's point stream holds the event loop for per SA batch (its IMU reader's
+    batches of `batch` 1 ms samples), centred and compensated, on a SIL recording at 25 rev/s.
+
+    Events go in in time order as the daemon sees them (a batch at the end of its last sample, each
+    pulse at its timestamp); wall time per `add_samples` call: mean and p99 over all batches, and
+    the mean over the batches that complete a point (the pipeline's work)."""
+    from tvsd.causes import parse_effects
+    from tvsd.config import load_config
+    from tvsd.scan.geometry import aim, doe_b_target
+    from tvsd.scan.settings import ScanSettings
+    from tvsd.scan.stream import PointStream
+    from tvsd.sim import scene
+
+    cfg = load_config()
+    effects = parse_effects(["imbalance:amplitude=7e-5,phase=0.3"])
+    trace, t_start = scene.spin_trace(cfg, rps, 0.8069, effects, seconds, seed=7)
+    settings = ScanSettings()
+    aimed = aim(*doe_b_target(60.0, 15.0, 2.0, settings.baseline_m), settings)
+    rec = scene.record(trace, aimed.beta, settings, scene.drive_model(cfg), t_start, np.random.default_rng(1))
+    k = rec.known
+    stream = PointStream(settings, aimed.phi, aimed.gamma, rec.tick_s, damping=k.damping)
+    events = sorted(
+        [(k.t0 + (i + batch) * k.dt, 0, i) for i in range(0, len(k.imu) - batch + 1, batch)]
+        + [(float(tp), 1, i) for i, tp in enumerate(rec.ticks * rec.tick_s)]
+    )
+    per_batch: list[float] = []
+    completing: list[float] = []
+    points = 0
+    for _, what, i in events:
+        if what == 1:
+            points += len(stream.add_pulse(int(rec.kind[i]), int(rec.ticks[i])))
+            continue
+        t0 = time.perf_counter()
+        got = stream.add_samples(k.t0 + i * k.dt, k.imu[i : i + batch], k.drive[i : i + batch])
+        elapsed = time.perf_counter() - t0
+        per_batch.append(elapsed)
+        if got:
+            completing.append(elapsed)
+        points += len(got)
+    ms = np.asarray(per_batch) * 1e3
+    return {
+        "scan_stream_batch_ms_mean": float(ms.mean()),
+        "scan_stream_batch_ms_p99": float(np.percentile(ms, 99)),
+        "scan_stream_completing_batch_ms_mean": 1e3 * float(np.mean(completing)),
+        "scan_stream_points": float(points),
+    }
