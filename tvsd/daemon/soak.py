@@ -39,6 +39,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from tvsd.control.latency import BINS_PER_DECADE
 from tvsd.daemon.soak_load import (
     BATCH_CALLS,
     Load,
@@ -262,6 +263,8 @@ def _figures(
         "soak_floor_max_us": fl.max_us,
         "soak_floor_missed_ticks": fl.missed_ticks,
         "soak_loop_p99_over_floor": ratio,
+        # Both p99s are the middles of their histogram bins: the ratio's resolution (1.0: one bin)
+        "soak_p99_bin_ratio": round(10 ** (1 / BINS_PER_DECADE), 3),
         "soak_imu_lost": _imu_lost(after) - _imu_lost(before),
         "soak_record_every_s": every,
         "soak_recordings": attempted,
