@@ -156,6 +156,20 @@ class KnownAccel:
         return (cum[end] - cum[start]) / np.maximum(end - start, 1) * self.dt
 
     def _window(self, t: ArrayLike, window_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        # One point's σ asks for the same windows four times (the same `t` array): kept by identity.
+        key = (id(t), window_s)
+        memo: dict[tuple[int, float], tuple[object, NDArray[np.int64], NDArray[np.int64]]]
+        memo = self.__dict__.setdefault("_windows", {})
+        hit = memo.get(key)
+        if hit is not None and hit[0] is t:
+            return hit[1], hit[2]
+        end, start = self._window_of(t, window_s)
+        if isinstance(t, np.ndarray):
+            memo.clear()  # only the newest: a stream's known acceleration lives for one computation
+            memo[key] = (t, end, start)
+        return end, start
+
+    def _window_of(self, t: ArrayLike, window_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         n = max(round(window_s / self.dt), 2)
         end = np.clip(
             ((np.asarray(t, dtype=np.float64) - self.t0) / self.dt).astype(np.int64), 1, len(self.imu)
@@ -177,7 +191,10 @@ class KnownAccel:
         seg = seg - np.where(
             valid, seg.sum(axis=1, keepdims=True) / np.maximum(valid.sum(1, keepdims=True), 1), 0.0
         )
-        nfft = 1 << int(np.ceil(np.log2(width + lags)))
-        spec = np.fft.rfft(seg, nfft, axis=1)
-        r = np.fft.irfft(spec * np.conj(spec), nfft, axis=1)[:, :lags]
+        if lags <= 4:  # a few lags (the σ model's 2): direct sums, cheaper than two FFTs
+            r = np.stack([np.sum(seg[:, : width - k] * seg[:, k:], axis=1) for k in range(lags)], axis=1)
+        else:
+            nfft = 1 << int(np.ceil(np.log2(width + lags)))
+            spec = np.fft.rfft(seg, nfft, axis=1)
+            r = np.fft.irfft(spec * np.conj(spec), nfft, axis=1)[:, :lags]
         return r / np.maximum(valid.sum(axis=1, keepdims=True), 1)
