@@ -130,7 +130,21 @@ class KnownAccel:
 
     def integrals(self, t: ArrayLike, accel: F64 | None = None) -> tuple[F64, F64]:
         """ω_K(t) and Φ_K(t) from t0: the acceleration through ω̇ = a − λ·ω, exactly."""
-        a = self.total if accel is None else accel
+        if accel is None and isinstance(t, np.ndarray) and t.size <= 64:
+            # A point's β and its σ ask for the same few times twice: kept by value.
+            memo: dict[tuple[object, ...], tuple[F64, F64]] = self.__dict__.setdefault("_integral_memo", {})
+            key = (t.shape, t.dtype.str, t.tobytes())
+            hit = memo.get(key)
+            if hit is None:
+                if len(memo) >= 8:
+                    memo.clear()
+                hit = memo[key] = self._integrals(t, self.total)
+                for arr in hit:
+                    arr.flags.writeable = False  # shared by the callers that ask again
+            return hit
+        return self._integrals(t, self.total if accel is None else accel)
+
+    def _integrals(self, t: ArrayLike, a: F64) -> tuple[F64, F64]:
         w, p = self._grid(a)
         t_ = np.asarray(t, dtype=np.float64) - self.t0
         i = np.clip((t_ / self.dt).astype(np.int64), 0, len(a) - 1)
