@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from window_stream import PointStream as WindowStream
 
-from tests.window_stream import PointStream as WindowStream
 from tvsd.causes import parse_effects
 from tvsd.config import load_config
 from tvsd.scan.geometry import aim, doe_b_target
