@@ -29,12 +29,7 @@ class Limits:
             raise ValueError(f"burst {self.burst} must be at least max_batch {self.max_batch}")
 
 
-UNLIMITED = Limits(
-    max_batch=1000,
-    max_reply_bytes=1 << 30,
-    rate_per_s=1e9,
-    burst=10**9,
-    max_clients=10**4,
+UNLIMITED = Limits(max_batch=1000, max_reply_bytes=1 << 30, rate_per_s=1e9, burst=10**9, max_clients=10**4,
     rate_total_per_s=1e12,
 )
 
