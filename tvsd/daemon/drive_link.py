@@ -20,9 +20,11 @@ tick (0.1 ms) behind at most, and the 10 kHz kernel never waits for it.
 Safety, in three layers: the control thread holds PWM 0 once the newest state frame is older than
 cfg.mcu.link_timeout_ms (40 ms: tvsd.control.runner, LoopFault.STALE); the link reports the loss
 after cfg.mcu.link_lost_ms (50 ms) without any frame (on_link(False)); the firmware cuts PWM and
-laser watchdog_ms after the last heartbeat. Heartbeats go every watchdog_ms / 4 from the link's
-I/O thread, and only while the control kernel's tick count moves (`liveness`): a dead control
-loop means no heartbeat, and the firmware cuts. Under --realtime that thread runs SCHED_FIFO
+laser watchdog_ms after the last heartbeat. Heartbeats go every watchdog_ms / 4 from the control
+kernel itself (Runner.attach_link, tvsd.control.link_tx: no GIL needed, so no Python code holding
+it can starve them), and PWM 0 behind each while the loop holds its safe state: a dead control
+loop means no heartbeat, and the firmware cuts. (Before the handshake, and where no runner is
+given, the link's I/O thread sends them while the kernel's tick count moves: `liveness`.) Under --realtime that thread runs SCHED_FIFO
 IO_THREAD_PRIORITY: below the control thread (80), above the event loop (40, tvsd.daemon.main).
 """
 
@@ -130,6 +132,7 @@ class DriveLink:
             liveness=lambda: self.runner.ticks,
             # (getattr: a board check in the tests runs without a runner)
             io_priority=IO_THREAD_PRIORITY if getattr(self.runner, "realtime", False) else None,
+            shared_tx=getattr(self.runner, "tx", None),  # the kernel writes the heartbeats
         )
         self.link = link  # state frames may come during the handshake
         try:
@@ -145,6 +148,10 @@ class DriveLink:
             await link.close()
             raise DeviceError(problem)
         self.clock_hz = link.identity.clock_hz
+        if hasattr(self.runner, "attach_link"):  # heartbeats from the nogil kernel from now on
+            hb_id, pwm_id = link.message_id("heartbeat"), link.message_id("pwm_set")
+            self.runner.attach_link(m.heartbeat_period_s, link.spec.sync, hb_id, pwm_id)
+            link.kernel_heartbeats(True)
         link.send_config(watchdog_ms=m.watchdog_ms, state_div=self.state_div, max_on_ms=0)
         self.runner.stale_after(m.link_timeout_ms * 1e-3)
         self.steppers = Steppers(link)
@@ -154,6 +161,8 @@ class DriveLink:
     async def close(self) -> None:
         """PWM 0 and laser off on the wire (the firmware's watchdog would do it too), then close."""
         if self.link is not None:
+            if hasattr(self.runner, "detach_link"):
+                self.runner.detach_link()
             with self._pwm_lock:  # the I/O thread sends no duty after this 0
                 self._answering = False
                 self.link.send_pwm(0.0)
@@ -290,10 +299,23 @@ class DriveLink:
             "heartbeat_gap_max_ms": round(st.heartbeat_gap_max_s * 1e3, 2),
             "heartbeat_late_max_ms": round(st.heartbeat_late_max_s * 1e3, 2),
             "heartbeats_withheld": st.heartbeats_withheld,  # the control loop had not ticked
+            **self._kernel_heartbeats(),
             "events_dropped": st.events_dropped,
             "io_thread_fifo": self.link.io_realtime,
             **({"sil_pid": self.sil.pid} if self.sil is not None else {}),
             "steppers": axes,
+        }
+
+    def _kernel_heartbeats(self) -> dict[str, Any]:
+        """The heartbeats the control kernel writes itself (tvsd.control.link_tx)."""
+        if not hasattr(self.runner, "heartbeat_stats"):
+            return {}
+        hb = self.runner.heartbeat_stats()
+        return {
+            "kernel_heartbeats": hb.sent,
+            "kernel_heartbeat_gap_max_ms": round(hb.gap_max_s * 1e3, 2),
+            "kernel_tx_errors": hb.errors,
+            "kernel_pwm0_frames": hb.cuts,
         }
 
     def to_mcu_s(self, host_s: float) -> float:
