@@ -24,8 +24,8 @@ laser watchdog_ms after the last heartbeat. Heartbeats go every watchdog_ms / 4 
 kernel itself (Runner.attach_link, tvsd.control.link_tx: no GIL needed, so no Python code holding
 it can starve them), and PWM 0 behind each while the loop holds its safe state: a dead control
 loop means no heartbeat, and the firmware cuts. (Before the handshake, and where no runner is
-given, the link's I/O thread sends them while the kernel's tick count moves: `liveness`.) Under --realtime that thread runs SCHED_FIFO
-IO_THREAD_PRIORITY: below the control thread (80), above the event loop (40, tvsd.daemon.main).
+given, the link's I/O thread sends them while the kernel's tick count moves: `liveness`.)
+Under --realtime that thread runs SCHED_FIFO IO_THREAD_PRIORITY: below the control thread (80), above the event loop (40, tvsd.daemon.main).
 """
 
 from __future__ import annotations
