@@ -327,6 +327,7 @@ def test_a_stopped_kernel_stops_its_heartbeat_and_the_firmware_cuts(
             print(f"firmware cut {after_s * 1e3:.1f} ms after the kernel's last heartbeat")
             assert WATCHDOG_MS / 1e3 <= after_s <= WATCHDOG_MS / 1e3 + 0.025
             assert vmcu.pwm_duty == 0.0 and link.stats().heartbeats == io_heartbeats  # none since
+            assert (await link.request_stats()).watchdog_expiries == 1  # the firmware's own count
         finally:
             await link.close()
 

@@ -25,11 +25,14 @@ kernel itself (Runner.attach_link, tvsd.control.link_tx: no GIL needed, so no Py
 it can starve them), and PWM 0 behind each while the loop holds its safe state: a dead control
 loop means no heartbeat, and the firmware cuts. (Before the handshake, and where no runner is
 given, the link's I/O thread sends them while the kernel's tick count moves: `liveness`.)
-Under --realtime that thread runs SCHED_FIFO IO_THREAD_PRIORITY: below the control thread (80), above the event loop (40, tvsd.daemon.main).
+Under --realtime that thread runs SCHED_FIFO IO_THREAD_PRIORITY: below the control thread (80),
+above the event loop (40, tvsd.daemon.main).
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import math
 import threading
 import time
@@ -44,6 +47,7 @@ from tvsd.control.runner import Runner
 from tvsd.errors import ConfigError, DeviceError, UsageError
 from tvsd.hw.mcu.io_thread import IO_THREAD_PRIORITY
 from tvsd.hw.mcu.link import FaultEvent, McuLink, PulseEvent, StateSample
+from tvsd.hw.mcu.messages import McuStats
 from tvsd.hw.mcu.spec import CONTROL_TICK_HZ
 from tvsd.hw.mcu.steppers import Steppers
 
@@ -55,6 +59,8 @@ SENT_HISTORY_S = 0.8  # PWM frames kept, in s of exchanges (the point stream loo
 SENT_SLACK = 64  # of them not read back: the I/O thread may be overwriting them meanwhile
 SIL_TARGET_RANGE_M = 2.0  # the SIL scene: a surface 2 m from the PL (tvsd/sim/scene.py)
 SIL_FAULTS = ("link_loss", "link_restore")
+FIRMWARE_STATS_PERIOD_S = 1.0  # how often the status's firmware counters are asked for (27 B back)
+FIRMWARE_COUNTERS = ("rx_overflows", "ticks_dropped", "watchdog_expiries")
 
 
 def spot_beta(cfg: Config, phi: float, gamma: float) -> float:
@@ -108,6 +114,8 @@ class DriveLink:
         self.link: McuLink | None = None
         self.steppers: Steppers | None = None
         self.last_state_host = math.nan
+        self._firmware: tuple[float, McuStats] | None = None  # (when, the MCU's stats reply)
+        self._stats_task: asyncio.Task[None] | None = None
 
     # --- life cycle -----------------------------------------------------------------------------
     async def start(self, sil: SilDevices | None = None) -> None:
@@ -157,9 +165,22 @@ class DriveLink:
         self.steppers = Steppers(link)
         for axis in ("phi", "gamma"):
             self.steppers.home(axis)
+        self._stats_task = asyncio.create_task(self._poll_firmware_stats(link), name="mcu-stats")
+
+    async def _poll_firmware_stats(self, link: McuLink) -> None:
+        """The firmware's own counters for the status (its watchdog expiries among them: a fault
+        frame can be lost on the way, the count cannot)."""
+        while True:
+            # no answer this time (link lost, or closing): the status shows the age
+            with contextlib.suppress(DeviceError):
+                self._firmware = (time.monotonic(), await link.request_stats())
+            await asyncio.sleep(FIRMWARE_STATS_PERIOD_S)
 
     async def close(self) -> None:
         """PWM 0 and laser off on the wire (the firmware's watchdog would do it too), then close."""
+        if self._stats_task is not None:
+            self._stats_task.cancel()
+            self._stats_task = None
         if self.link is not None:
             if hasattr(self.runner, "detach_link"):
                 self.runner.detach_link()
@@ -300,11 +321,19 @@ class DriveLink:
             "heartbeat_late_max_ms": round(st.heartbeat_late_max_s * 1e3, 2),
             "heartbeats_withheld": st.heartbeats_withheld,  # the control loop had not ticked
             **self._kernel_heartbeats(),
+            "firmware": self._firmware_counters(),
             "events_dropped": st.events_dropped,
             "io_thread_fifo": self.link.io_realtime,
             **({"sil_pid": self.sil.pid} if self.sil is not None else {}),
             "steppers": axes,
         }
+
+    def _firmware_counters(self) -> dict[str, Any] | None:
+        """The MCU's counters from its latest stats reply (None before the first), and its age."""
+        if self._firmware is None:
+            return None
+        t, st = self._firmware
+        return {**{k: getattr(st, k) for k in FIRMWARE_COUNTERS}, "age_s": round(time.monotonic() - t, 2)}
 
     def _kernel_heartbeats(self) -> dict[str, Any]:
         """The heartbeats the control kernel writes itself (tvsd.control.link_tx)."""
