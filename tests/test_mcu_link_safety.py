@@ -22,6 +22,7 @@ from conftest import until
 
 from tvsd.control.runner import Runner
 from tvsd.daemon.main import SWITCH_INTERVAL_S
+from tvsd.hw.mcu.io_bench import GilHold
 from tvsd.hw.mcu.io_thread import IO_THREAD_PRIORITY
 from tvsd.hw.mcu.link import FaultEvent, McuLink, McuSettings, StateSample
 from tvsd.hw.mcu.receiving import EVENT_QUEUE, Receiver
@@ -220,22 +221,6 @@ def test_a_full_event_queue_drops_and_counts_but_keeps_link_changes() -> None:
 # --- heartbeats from the nogil control kernel (tvsd.control.link_tx) ---------------------------
 
 
-def hold_the_gil_s(at_least_s: float) -> float:
-    """Hold the GIL inside C for at least `at_least_s`: a catastrophic-backtracking `re` match
-    (sre never releases the GIL) sized on this machine, doubling per extra 'a'. Returns the
-    duration of the last (the long) match."""
-    pattern = __import__("re").compile(r"(a+)+b")
-    n, took = 16, 0.0
-    while took < at_least_s:
-        n += 1
-        t0 = time.perf_counter()
-        pattern.match("a" * n)
-        took = time.perf_counter() - t0
-        if took < at_least_s / 4:
-            n += 1  # grow faster while far below
-    return took
-
-
 async def connect_kernel(port: str, runner: Runner, seen: Seen) -> McuLink:
     """As the daemon does it (tvsd.daemon.drive_link): the kernel writes the heartbeats."""
     await until(lambda: runner.is_running, 60.0, "the control kernel running")
@@ -276,11 +261,12 @@ def test_the_gil_held_in_c_starves_no_kernel_heartbeat(vmcu_port: str, runner: R
         else:
             link = await connect(vmcu_port, runner, seen)
         try:
+            hold = GilHold(0.2)  # sized here, on this machine as loaded now
             await asyncio.sleep(0.2)
             link.reset_peaks()
             runner.reset_heartbeat_peaks()
             rtts = link.stats().rtt_samples
-            held = hold_the_gil_s(0.2)
+            held = hold()
             await asyncio.sleep(0.15)  # the firmware's word on the hold reaches us
             st = link.stats()
         finally:
