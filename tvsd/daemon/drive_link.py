@@ -344,6 +344,7 @@ class DriveLink:
             "kernel_heartbeats": hb.sent,
             "kernel_heartbeat_gap_max_ms": round(hb.gap_max_s * 1e3, 2),
             "kernel_tx_errors": hb.errors,
+            "kernel_port_busy": hb.busy,  # ticks it found the port taken (tried again next tick)
             "kernel_pwm0_frames": hb.cuts,
         }
 
