@@ -120,10 +120,12 @@ class Runner:
         record: int = 65536,
         realtime: bool = False,
         excitation_rows: int = 0,
+        lock_memory: bool = True,  # with `realtime`: mlockall (a test process may not want it)
     ) -> None:
         self._setup = setup  # the plant's arrays; the gains live in `vals` from here on
         self.sil = sil
         self.realtime = realtime
+        self.lock_memory = lock_memory
         self.realtime_report: Realtime | None = None
         self.ints = np.zeros(N_INTS, dtype=np.int64)
         self.ints[L.K_PERIOD_NS] = round((setup.dt if period_s is None else period_s) * L.NS)
@@ -378,7 +380,7 @@ class Runner:
 
     def _main(self) -> None:
         if self.realtime:
-            self.realtime_report = request_realtime()
+            self.realtime_report = request_realtime(lock=self.lock_memory)
         cpu0 = time.thread_time()
         s = self._setup
         control_loop(

@@ -144,12 +144,31 @@ def tx_open(tx: np.ndarray, mutex: np.ndarray, fd: int) -> None:
     _unlock(mutex.ctypes)
 
 
+_warm = False
+
+
+def warm_up() -> None:
+    """Load (or compile) the functions the I/O thread calls, once per process: the first call
+    of a numba function holds the GIL for seconds (measured 3.2 s here), which on a port already
+    open stalled the link (the simavr test lost 2.7 s of frames)."""
+    global _warm
+    if _warm:
+        return
+    tx, mutex = np.zeros(N_TX_WORDS, dtype=np.int64), np.zeros(MUTEX_WORDS, dtype=np.int64)
+    tx_open(tx, mutex, -1)
+    tx_write(tx, mutex, np.zeros(1, dtype=np.uint8), 0, 1, WRITER_IO, True)
+    release_torn(tx, mutex, WRITER_IO)
+    tx_close(tx, mutex)
+    _warm = True
+
+
 class SharedTx:
     """The shared write side of one serial fd: the mutex, the words, the fd (-1: none). Made
     once, before either writer starts (the control kernel holds these arrays for its whole run);
     ``open``/``close`` point it at a port and away again."""
 
     def __init__(self) -> None:
+        warm_up()  # here, before any port is open
         self.mutex = np.zeros(MUTEX_WORDS, dtype=np.int64)
         self.words = np.zeros(N_TX_WORDS, dtype=np.int64)
         self.words[TX_FD] = -1
