@@ -8,6 +8,7 @@ driven by a busy-wait hook (the overrun is then certain, not a matter of luck).
 from __future__ import annotations
 
 import math
+import os
 import time
 import tracemalloc
 
@@ -210,3 +211,31 @@ def test_no_allocation_per_tick(setup: Setup) -> None:
     nrt_stats.memsys_disable_stats()
     assert per_tick[False] == 0.0
     assert per_tick[True] == 0.0
+
+
+def test_no_allocation_per_tick_with_the_kernels_heartbeat(setup: Setup) -> None:
+    """The kernel writing a heartbeat every tick (and PWM 0 behind it: its stale fault latched),
+    to /dev/null through the shared port: still no NRT allocation per tick, and every write
+    whole (errors 0)."""
+    fd = os.open(os.devnull, os.O_WRONLY)
+    nrt_stats.memsys_enable_stats()
+    try:
+        r = Runner(setup, sil=False)
+        r.tx.open(fd)
+        r.attach_link(1e-4, 0xA5, 0x02, 0x03)  # due every tick
+        r.stale_after(1e-3)
+        r.measured(0.0, 0.0, t_ns=1)  # long stale: the fault latches on the first tick
+        r.position(0.2)
+        counts = []
+        for n in (200, 5200):
+            a = rtsys.get_allocation_stats().alloc
+            r.start(max_ticks=n)
+            r.join(30.0)
+            counts.append(rtsys.get_allocation_stats().alloc - a)
+        hb = r.heartbeat_stats()
+    finally:
+        nrt_stats.memsys_disable_stats()
+        r.tx.close()
+        os.close(fd)
+    assert r.fault and hb.sent > 1000 and hb.cuts > 1000 and hb.errors == 0, hb
+    assert (counts[1] - counts[0]) / 5000 == 0.0

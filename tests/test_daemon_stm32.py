@@ -63,3 +63,9 @@ def test_sil_daemon_exchanges_at_10_khz_with_the_stm32_settings(stm32_daemon: Pa
     ticks = b["loop"]["ticks"] - a["loop"]["ticks"]
     assert frames >= 0.9 * ticks, f"{frames} frames from the MCU in {ticks} control ticks"
     assert abs(b["rps"] - 10.0) < 0.5, b
+    # the safety path's figures (issue 13): the kernel writes the heartbeats, and the status
+    # carries the firmware's own counters from its stats (a watchdog expiry among them)
+    link = wait_status(sock, lambda s: s["link"]["firmware"] is not None, 10, "the firmware's stats")["link"]
+    assert link["kernel_heartbeats"] > 0 and link["kernel_tx_errors"] == 0, link
+    assert set(link["firmware"]) == {"rx_overflows", "ticks_dropped", "watchdog_expiries", "age_s"}
+    assert link["firmware"]["watchdog_expiries"] == 0, link

@@ -265,3 +265,9 @@ def test_fuzz_harness_reports_a_weak_check() -> None:
 
     r = fuzz_decoder(2_000, seed=7, make_decoder=lambda s: TruncatedCheckDecoder(s, 4))
     assert r.false_accepts > 10
+
+
+def test_the_decoders_default_max_payload_is_the_protocols() -> None:
+    from tvsd.hw.mcu.framing import MAX_PAYLOAD
+
+    assert SPEC.max_payload == MAX_PAYLOAD

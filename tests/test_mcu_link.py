@@ -72,7 +72,7 @@ class FakeMcu:
                 (host_us,) = ID["heartbeat"].codec.unpack(f.payload)
                 self.send("heartbeat_ack", host_us, self.ticks() & 0xFFFF_FFFF)
             elif name == "stats_req":
-                self.send("stats", self.decoder.stats.frames, 0, 0, 0, 0, 0, 0)
+                self.send("stats", self.decoder.stats.frames, 0, 0, 0, 0, 0, 0, 0)
 
     def pwm(self) -> list[int]:
         return [

@@ -22,6 +22,7 @@ from conftest import until
 
 from tvsd.control.runner import Runner
 from tvsd.daemon.main import SWITCH_INTERVAL_S
+from tvsd.hw.mcu.io_bench import GilHold
 from tvsd.hw.mcu.io_thread import IO_THREAD_PRIORITY
 from tvsd.hw.mcu.link import FaultEvent, McuLink, McuSettings, StateSample
 from tvsd.hw.mcu.receiving import EVENT_QUEUE, Receiver
@@ -78,8 +79,12 @@ async def connect(port: str, runner: Runner, seen: Seen) -> McuLink:
 # long enough for the emulated clock to jump past the watchdog (a fresh-clone CI run) — the
 # emulator starved, not the link.
 VMCU_CHILD = """
-import sys
+import os, sys
 from tvsd.sim import virtual_mcu as vm
+try:  # the emulator at a real-time priority, as the SIL devices' process under --realtime: what
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))  # is tested is the host's path,
+except OSError:  # not the emulated clock jumping after a starved pump (refused: as it was)
+    pass
 try:
     v = vm.VirtualMcu()
 except vm.VirtualMcuError as exc:
@@ -215,3 +220,145 @@ def test_a_full_event_queue_drops_and_counts_but_keeps_link_changes() -> None:
         assert len(got) == EVENT_QUEUE + 1 and got[-1] is False
     finally:
         loop.close()
+
+
+# --- heartbeats from the nogil control kernel (tvsd.control.link_tx) ---------------------------
+
+
+async def connect_kernel(port: str, runner: Runner, seen: Seen) -> McuLink:
+    """As the daemon does it (tvsd.daemon.drive_link): the kernel writes the heartbeats."""
+    await until(lambda: runner.is_running, 60.0, "the control kernel running")
+    settings = McuSettings(port=port, watchdog_ms=WATCHDOG_MS, link_lost_ms=50.0)
+    link = McuLink(
+        settings,
+        on_state=seen.state,
+        on_fault=seen.faults.append,
+        on_link=seen.links.append,
+        liveness=lambda: runner.ticks,
+        io_priority=IO_THREAD_PRIORITY,
+        shared_tx=runner.tx,
+    )
+    await link.__aenter__()
+    link.send_config(watchdog_ms=WATCHDOG_MS, state_div=STATE_DIV, max_on_ms=0)
+    await link.ping()
+    spec_ids = (link.message_id("heartbeat"), link.message_id("pwm_set"))
+    runner.attach_link(settings.heartbeat_period_s, link.spec.sync, *spec_ids)
+    link.kernel_heartbeats(True)
+    return link
+
+
+@pytest.fixture
+def rt_runner(setup: object) -> Iterator[Runner]:
+    """The kernel at the daemon's --realtime priority (SCHED_FIFO 80; refused: as it is), no mlockall."""
+    r = Runner(setup, sil=False, realtime=True, lock_memory=False)  # type: ignore[arg-type]
+    r.start()
+    try:
+        yield r
+    finally:
+        r.stop(timeout=2.0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sender", ["kernel", "io_thread"])
+def test_the_gil_held_in_c_starves_no_kernel_heartbeat(
+    vmcu_port: str, rt_runner: Runner, sender: str
+) -> None:
+    """The GIL held inside C for >= 200 ms (4 x the firmware's 50 ms watchdog), the virtual MCU in
+    its own process (at a real-time priority, as the SIL devices' process runs). Heartbeats from
+    the kernel, at the daemon's --realtime priority: the longest gap under half the watchdog
+    (due every 12.5 ms, the kernel ticks every 0.1 ms: measured 12.5–15 ms under every load of
+    `tvsctl bench --only mcu_io`; 25 ms would be a stall of a FIFO 80 thread), no watchdog
+    expiry, and the kernel's heartbeat acks still feed the round trips. From the I/O thread (how
+    it was before): the same hold starves it, and the firmware cuts — the test's proof that the
+    hold is real."""
+    runner = rt_runner
+
+    async def main() -> None:
+        seen = Seen()
+        if sender == "kernel":
+            link = await connect_kernel(vmcu_port, runner, seen)
+        else:
+            link = await connect(vmcu_port, runner, seen)
+        try:
+            hold = GilHold(0.2)  # sized here, on this machine as loaded now
+            await asyncio.sleep(0.2)
+            link.reset_peaks()
+            runner.reset_heartbeat_peaks()
+            rtts = link.stats().rtt_samples
+            held = hold()
+            await asyncio.sleep(0.15)  # the firmware's word on the hold reaches us
+            st = link.stats()
+        finally:
+            runner.detach_link()
+            await link.close()
+        hb = runner.heartbeat_stats()
+        gap = hb.gap_max_s if sender == "kernel" else st.heartbeat_gap_max_s
+        print(f"{sender}: GIL held {held * 1e3:.0f} ms; heartbeat gap max {gap * 1e3:.1f} ms; "
+              f"{len(seen.watchdog_cuts())} watchdog expiries")  # fmt: skip
+        assert held >= 0.2
+        if sender == "kernel":
+            assert not seen.watchdog_cuts(), seen.faults
+            assert gap < WATCHDOG_MS / 2e3, hb
+            assert hb.errors == 0 and st.rtt_samples > rtts, (hb, st)
+        else:
+            assert seen.watchdog_cuts(), "the I/O thread's heartbeat survived a 200 ms GIL hold?"
+
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
+    try:
+        asyncio.run(main())
+    finally:
+        sys.setswitchinterval(switch)
+
+
+def test_a_stopped_kernel_stops_its_heartbeat_and_the_firmware_cuts(
+    vmcu: vm.VirtualMcu, runner: Runner
+) -> None:
+    """Kernel heartbeats: the kernel stops, the heartbeats stop with it (no other thread sends
+    any), and the firmware cuts PWM watchdog_ms after the last one, within the same 25 ms of
+    slack as the I/O thread's test above (the virtual MCU's 1 ms pump, two thread wake-ups)."""
+
+    async def main() -> None:
+        seen = Seen()
+        link = await connect_kernel(vmcu.port, runner, seen)
+        io_heartbeats = link.stats().heartbeats  # the I/O thread's, before the kernel took over
+        try:
+            assert link.send_pwm(0.3)
+            await until(lambda: vmcu.pwm_duty > 0.25, 2.0, "the firmware taking the duty")
+            runner.stop(timeout=2.0)
+            await until(seen.watchdog_cuts, 2.0, "the firmware's watchdog expiry")
+            last = runner.heartbeat_stats().last_s
+            after_s = seen.watchdog_cuts()[0].host_time - last
+            print(f"firmware cut {after_s * 1e3:.1f} ms after the kernel's last heartbeat")
+            assert WATCHDOG_MS / 1e3 <= after_s <= WATCHDOG_MS / 1e3 + 0.025
+            assert vmcu.pwm_duty == 0.0 and link.stats().heartbeats == io_heartbeats  # none since
+            assert (await link.request_stats()).watchdog_expiries == 1  # the firmware's own count
+        finally:
+            await link.close()
+
+    asyncio.run(main())
+
+
+def test_the_kernels_safe_state_reaches_the_firmware_without_the_io_thread(
+    vmcu: vm.VirtualMcu, runner: Runner
+) -> None:
+    """The loop's stale-measurement fault holds command 0; the kernel itself puts PWM 0 on the
+    wire behind the heartbeat (the I/O thread, which sends the duty, may be the starved one), so
+    the motor never runs on the last duty while the kernel keeps the watchdog quiet."""
+
+    async def main() -> None:
+        seen = Seen()
+        link = await connect_kernel(vmcu.port, runner, seen)
+        try:
+            assert link.send_pwm(0.3)
+            await until(lambda: vmcu.pwm_duty > 0.25, 2.0, "the firmware taking the duty")
+            runner.stale_after(LINK_TIMEOUT_S)
+            runner.position(0.0)  # no measurement ever written: stale at once
+            await until(lambda: vmcu.pwm_duty == 0.0, 2.0, "PWM 0 from the kernel")
+            assert runner.fault and runner.heartbeat_stats().cuts > 0
+            assert not seen.watchdog_cuts()
+        finally:
+            runner.detach_link()
+            await link.close()
+
+    asyncio.run(main())

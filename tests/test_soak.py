@@ -39,6 +39,7 @@ def test_a_short_soak_under_cpu_hogs_has_no_fault_and_no_watchdog_expiry() -> No
     res = soak(SECONDS)
     print(json.dumps(res, indent=1))
     assert res["soak_watchdog_expiries"] == 0, res["soak_fault_counts"]
+    assert res["soak_watchdog_expiries_firmware"] == 0, res  # the firmware's own count (its stats)
     assert res["soak_faults"] == 0, res["soak_fault_counts"]
     assert res["soak_state_end"] == "scanning"
     assert res["soak_recordings_exported"] == res["soak_recordings"], res["soak_export_errors"]
@@ -63,6 +64,7 @@ def test_a_short_soak_under_cpu_hogs_alone_keeps_the_mcu_link() -> None:
     counts = dict(res["soak_fault_counts"])
     imu_faults = counts.pop("imu", 0)
     assert res["soak_watchdog_expiries"] == 0, res["soak_fault_counts"]
+    assert res["soak_watchdog_expiries_firmware"] == 0, res  # the firmware's own count (its stats)
     assert not counts, res["soak_fault_counts"]
     assert res["soak_state_end"] == "scanning"
     assert res["soak_recordings_exported"] == res["soak_recordings"], res["soak_export_errors"]

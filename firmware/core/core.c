@@ -31,6 +31,7 @@ void core_init(void)
     reported_drops = 0;
     uint8_t irq = board_irq_save();
     core_rx_overflows = core_ticks_dropped = 0;
+    outputs_clear_counts();
     board_irq_restore(irq);
 }
 
@@ -55,6 +56,7 @@ void core_stats(core_stats_t *s)
     s->resyncs = core_parser.resyncs;
     s->tx_dropped = frame_tx_dropped();
     s->duplicates = core_parser.duplicates;
+    s->watchdog_expiries = outputs_watchdog_expiries(); /* main context, as the tick that counts it */
     uint8_t irq = board_irq_save(); /* ISR counters: a 16-bit read is two instructions on AVR */
     s->rx_overflows = core_rx_overflows;
     s->ticks_dropped = core_ticks_dropped;

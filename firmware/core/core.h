@@ -18,6 +18,7 @@ extern core_config_t core_cfg;
 typedef struct {
     uint32_t rx_frames;
     uint16_t crc_errors, resyncs, tx_dropped, duplicates, rx_overflows, ticks_dropped;
+    uint16_t watchdog_expiries; /* heartbeat watchdog cuts since boot (outputs.c) */
 } core_stats_t;
 
 /* Counted by the board's ISRs, reported in stats (modulo 65536, like the others): a received

@@ -140,8 +140,8 @@ static void handle_stats_req(const frame_t *f)
     core_stats_t s;
     core_stats(&s);
     uint8_t p[MSG_STATS_LEN];
-    msg_stats_t m = {s.rx_frames,    s.crc_errors,   s.resyncs,      s.tx_dropped,
-                     s.duplicates,   s.rx_overflows, s.ticks_dropped};
+    msg_stats_t m = {s.rx_frames,  s.crc_errors,   s.resyncs,       s.tx_dropped,
+                     s.duplicates, s.rx_overflows, s.ticks_dropped, s.watchdog_expiries};
     msg_stats_pack(p, &m);
     frame_send(MSG_STATS_ID, p, sizeof p);
 }

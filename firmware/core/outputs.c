@@ -14,6 +14,7 @@ static uint32_t pwm_since, laser_since; /* last command that kept the output on 
  * per check would cost the AVR ~100 cycles per control tick). */
 static uint16_t limits_for_wd, limits_for_max_on;
 static uint32_t wd_ticks, max_on_ticks;
+static uint16_t wd_expiries; /* since boot (core_init), modulo 65536: stats watchdog_expiries */
 
 void outputs_reset(void)
 {
@@ -33,6 +34,9 @@ void outputs_heartbeat(uint32_t now)
 }
 
 bool outputs_armed(void) { return armed; }
+
+uint16_t outputs_watchdog_expiries(void) { return wd_expiries; }
+void outputs_clear_counts(void) { wd_expiries = 0; }
 int16_t outputs_pwm(void) { return pwm; }
 bool outputs_laser(void) { return laser; }
 
@@ -78,6 +82,7 @@ void outputs_tick(uint32_t now)
     }
     if (armed && expired(now, last_heartbeat, wd_ticks)) {
         armed = false;
+        wd_expiries++;
         outputs_cut();
         core_fault(FAULT_WATCHDOG_EXPIRED, core_cfg.watchdog_ms);
         return;

@@ -13,6 +13,9 @@ void outputs_reset(void);
 void outputs_heartbeat(uint32_t now);
 /* True while heartbeats arrive within watchdog_ms: only then are outputs accepted. */
 bool outputs_armed(void);
+/* Watchdog expiries since outputs_clear_counts (core_init: boot), for stats. */
+uint16_t outputs_watchdog_expiries(void);
+void outputs_clear_counts(void);
 void outputs_set_pwm(int16_t duty, uint32_t now);
 void outputs_set_laser(bool on, uint32_t now);
 int16_t outputs_pwm(void);

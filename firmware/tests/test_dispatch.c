@@ -159,7 +159,7 @@ void test_tx_overflow(void)
     fake_reset();
     int sent = 0;
     for (int i = 0; i < 40; i++, sent++)
-        fake_send(MSG_STATS_REQ_ID, NULL, 0); /* 16 B each, ring of CORE_TX_RING */
+        fake_send(MSG_STATS_REQ_ID, NULL, 0); /* MSG_STATS_LEN + 9 B each, ring of CORE_TX_RING */
     int expect_kept = CORE_TX_RING / (MSG_STATS_LEN + PROTO_OVERHEAD);
     fake_frame_t f;
     int kept = 0, last_seq = -1;

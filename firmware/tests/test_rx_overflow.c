@@ -115,3 +115,23 @@ void test_a_burst_past_the_rx_ring_is_counted_and_the_parser_resyncs(void)
     CHECK_EQ(fb.pwm, -123);
     CHECK_EQ(core_parser.rx_frames - rx0, (uint32_t)n_whole + 1u);
 }
+
+/* Each heartbeat watchdog expiry is counted once (not once per tick while it stays expired), the
+ * count reaches the host in stats even when the fault frame itself was lost, and a boot clears
+ * it. */
+void test_stats_count_watchdog_expiries(void)
+{
+    fake_reset();
+    CHECK_EQ(stats().watchdog_expiries, 0);
+    fake_config(20, 0, 0);
+    for (int k = 1; k <= 3; k++) {
+        fake_heartbeat(1);
+        fake_advance(100 * CORE_TICKS_PER_MS); /* 100 ms: 5 x the watchdog, one expiry */
+        fake_frame_t f;
+        while (fake_recv(&f) >= 0) { /* the fault frames: drained, as if lost on the line */
+        }
+        CHECK_EQ(stats().watchdog_expiries, k);
+    }
+    core_init(); /* a boot starts it over */
+    CHECK_EQ(stats().watchdog_expiries, 0);
+}

@@ -55,9 +55,10 @@ def _loop() -> dict[str, Any]:
 
 
 def _mcu_io() -> dict[str, Any]:
+    from tvsd.control.link_bench import bench_kernel_heartbeat
     from tvsd.hw.mcu.io_bench import bench_io_thread
 
-    return bench_io_thread()
+    return {**bench_io_thread(), **bench_kernel_heartbeat()}  # the I/O thread's, then the kernel's
 
 
 def _mcu_sil() -> dict[str, Any]:

@@ -20,14 +20,19 @@ tick (0.1 ms) behind at most, and the 10 kHz kernel never waits for it.
 Safety, in three layers: the control thread holds PWM 0 once the newest state frame is older than
 cfg.mcu.link_timeout_ms (40 ms: tvsd.control.runner, LoopFault.STALE); the link reports the loss
 after cfg.mcu.link_lost_ms (50 ms) without any frame (on_link(False)); the firmware cuts PWM and
-laser watchdog_ms after the last heartbeat. Heartbeats go every watchdog_ms / 4 from the link's
-I/O thread, and only while the control kernel's tick count moves (`liveness`): a dead control
-loop means no heartbeat, and the firmware cuts. Under --realtime that thread runs SCHED_FIFO
-IO_THREAD_PRIORITY: below the control thread (80), above the event loop (40, tvsd.daemon.main).
+laser watchdog_ms after the last heartbeat. Heartbeats go every watchdog_ms / 4 from the control
+kernel itself (Runner.attach_link, tvsd.control.link_tx: no GIL needed, so no Python code holding
+it can starve them), and PWM 0 behind each while the loop holds its safe state: a dead control
+loop means no heartbeat, and the firmware cuts. (Before the handshake, and where no runner is
+given, the link's I/O thread sends them while the kernel's tick count moves: `liveness`.)
+Under --realtime that thread runs SCHED_FIFO IO_THREAD_PRIORITY: below the control thread (80),
+above the event loop (40, tvsd.daemon.main).
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import math
 import threading
 import time
@@ -42,6 +47,7 @@ from tvsd.control.runner import Runner
 from tvsd.errors import ConfigError, DeviceError, UsageError
 from tvsd.hw.mcu.io_thread import IO_THREAD_PRIORITY
 from tvsd.hw.mcu.link import FaultEvent, McuLink, PulseEvent, StateSample
+from tvsd.hw.mcu.messages import McuStats
 from tvsd.hw.mcu.spec import CONTROL_TICK_HZ
 from tvsd.hw.mcu.steppers import Steppers
 
@@ -53,6 +59,8 @@ SENT_HISTORY_S = 0.8  # PWM frames kept, in s of exchanges (the point stream loo
 SENT_SLACK = 64  # of them not read back: the I/O thread may be overwriting them meanwhile
 SIL_TARGET_RANGE_M = 2.0  # the SIL scene: a surface 2 m from the PL (tvsd/sim/scene.py)
 SIL_FAULTS = ("link_loss", "link_restore")
+FIRMWARE_STATS_PERIOD_S = 1.0  # how often the status's firmware counters are asked for (27 B back)
+FIRMWARE_COUNTERS = ("rx_overflows", "ticks_dropped", "watchdog_expiries")
 
 
 def spot_beta(cfg: Config, phi: float, gamma: float) -> float:
@@ -106,6 +114,8 @@ class DriveLink:
         self.link: McuLink | None = None
         self.steppers: Steppers | None = None
         self.last_state_host = math.nan
+        self._firmware: tuple[float, McuStats] | None = None  # (when, the MCU's stats reply)
+        self._stats_task: asyncio.Task[None] | None = None
 
     # --- life cycle -----------------------------------------------------------------------------
     async def start(self, sil: SilDevices | None = None) -> None:
@@ -130,6 +140,7 @@ class DriveLink:
             liveness=lambda: self.runner.ticks,
             # (getattr: a board check in the tests runs without a runner)
             io_priority=IO_THREAD_PRIORITY if getattr(self.runner, "realtime", False) else None,
+            shared_tx=getattr(self.runner, "tx", None),  # the kernel writes the heartbeats
         )
         self.link = link  # state frames may come during the handshake
         try:
@@ -145,15 +156,34 @@ class DriveLink:
             await link.close()
             raise DeviceError(problem)
         self.clock_hz = link.identity.clock_hz
+        if hasattr(self.runner, "attach_link"):  # heartbeats from the nogil kernel from now on
+            hb_id, pwm_id = link.message_id("heartbeat"), link.message_id("pwm_set")
+            self.runner.attach_link(m.heartbeat_period_s, link.spec.sync, hb_id, pwm_id)
+            link.kernel_heartbeats(True)
         link.send_config(watchdog_ms=m.watchdog_ms, state_div=self.state_div, max_on_ms=0)
         self.runner.stale_after(m.link_timeout_ms * 1e-3)
         self.steppers = Steppers(link)
         for axis in ("phi", "gamma"):
             self.steppers.home(axis)
+        self._stats_task = asyncio.create_task(self._poll_firmware_stats(link), name="mcu-stats")
+
+    async def _poll_firmware_stats(self, link: McuLink) -> None:
+        """The firmware's own counters for the status (its watchdog expiries among them: a fault
+        frame can be lost on the way, the count cannot)."""
+        while True:
+            # no answer this time (link lost, or closing): the status shows the age
+            with contextlib.suppress(DeviceError):
+                self._firmware = (time.monotonic(), await link.request_stats())
+            await asyncio.sleep(FIRMWARE_STATS_PERIOD_S)
 
     async def close(self) -> None:
         """PWM 0 and laser off on the wire (the firmware's watchdog would do it too), then close."""
+        if self._stats_task is not None:
+            self._stats_task.cancel()
+            self._stats_task = None
         if self.link is not None:
+            if hasattr(self.runner, "detach_link"):
+                self.runner.detach_link()
             with self._pwm_lock:  # the I/O thread sends no duty after this 0
                 self._answering = False
                 self.link.send_pwm(0.0)
@@ -290,10 +320,32 @@ class DriveLink:
             "heartbeat_gap_max_ms": round(st.heartbeat_gap_max_s * 1e3, 2),
             "heartbeat_late_max_ms": round(st.heartbeat_late_max_s * 1e3, 2),
             "heartbeats_withheld": st.heartbeats_withheld,  # the control loop had not ticked
+            **self._kernel_heartbeats(),
+            "firmware": self._firmware_counters(),
             "events_dropped": st.events_dropped,
             "io_thread_fifo": self.link.io_realtime,
             **({"sil_pid": self.sil.pid} if self.sil is not None else {}),
             "steppers": axes,
+        }
+
+    def _firmware_counters(self) -> dict[str, Any] | None:
+        """The MCU's counters from its latest stats reply (None before the first), and its age."""
+        if self._firmware is None:
+            return None
+        t, st = self._firmware
+        return {**{k: getattr(st, k) for k in FIRMWARE_COUNTERS}, "age_s": round(time.monotonic() - t, 2)}
+
+    def _kernel_heartbeats(self) -> dict[str, Any]:
+        """The heartbeats the control kernel writes itself (tvsd.control.link_tx)."""
+        if not hasattr(self.runner, "heartbeat_stats"):
+            return {}
+        hb = self.runner.heartbeat_stats()
+        return {
+            "kernel_heartbeats": hb.sent,
+            "kernel_heartbeat_gap_max_ms": round(hb.gap_max_s * 1e3, 2),
+            "kernel_tx_errors": hb.errors,
+            "kernel_port_busy": hb.busy,  # ticks it found the port taken (tried again next tick)
+            "kernel_pwm0_frames": hb.cuts,
         }
 
     def to_mcu_s(self, host_s: float) -> float:

@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass, field
 from tvsd.hw.mcu.spec import FRAME_CRC, FRAME_HEADER, FRAME_OVERHEAD, SEQ_MODULO
 
 SYNC = 0xA5
-MAX_PAYLOAD = 16
+MAX_PAYLOAD = 18  # protocol.yaml max_payload (a test checks they agree)
 HEADER = FRAME_HEADER  # SYNC, LEN, SEQ (2), ID
 _SEQ_MASK = SEQ_MODULO - 1
 

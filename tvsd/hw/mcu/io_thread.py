@@ -10,19 +10,24 @@ Other Python code delays it only by holding the GIL (it is handed over every
 ``sys.getswitchinterval()``; the daemon sets 1 ms) or, under ``--realtime``, not at all by CPU
 load: the thread runs SCHED_FIFO between the control thread and the event loop.
 
-Writing: every frame goes through one lock-protected, non-blocking ``os.write`` with a bounded
+Writing: every frame goes through one lock-protected, non-blocking write with a bounded
 pending buffer, so any thread may send without blocking and frames never interleave; when the
 line cannot keep up, whole new frames are refused and counted, never half-written; this thread
-flushes the rest when the port is writable.
+flushes the rest when the port is writable. The write is ``shared_tx.SharedTx.write``: the
+control kernel writes heartbeats to the same fd (``kernel_heartbeats``), and that mutex and
+torn-frame word keep the two writers' frames whole.
 
 The heartbeat goes every ``settings.heartbeat_period_s`` while ``liveness()`` (the control
 kernel's tick count, in the daemon) has moved since the last one: a live control loop means a
-live heartbeat, a dead one means the firmware cuts within its watchdog.
+live heartbeat, a dead one means the firmware cuts within its watchdog. In the daemon the
+control kernel sends them itself (tvsd.control.link_tx: no GIL needed) and this thread's
+schedule is off (``kernel_heartbeats(True)``).
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import math
 import os
@@ -32,9 +37,12 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
+
 from tvsd.hw.mcu.events import LinkStats
 from tvsd.hw.mcu.framing import Frame, FrameDecoder, encode_frame
 from tvsd.hw.mcu.settings import McuSettings
+from tvsd.hw.mcu.shared_tx import BUSY, IO_SEQ_MODULUS, KERNEL_SEQ, SharedTx
 
 log = logging.getLogger("tvsd.hw.mcu.link")  # the link's log, whichever part writes it
 
@@ -73,6 +81,7 @@ class LinkIo:
         heartbeat: Callable[[], bool],
         liveness: Callable[[], int] | None = None,
         priority: int | None = None,
+        shared: SharedTx | None = None,
     ) -> None:
         self.settings, self.sync, self.decoder, self.stats = settings, sync, decoder, stats
         self.on_frames, self.on_link, self.on_gone, self.heartbeat = on_frames, on_link, on_gone, heartbeat
@@ -81,9 +90,13 @@ class LinkIo:
         self.tx_error: OSError | None = None
         # what went out under each SEQ (an ack names a frame by its SEQ only); written under the lock
         self.sent: list[Any] = [None] * 0x1_0000
+        self.sent[KERNEL_SEQ] = self.sent[KERNEL_SEQ + 1] = ("heartbeat", ())  # the kernel's
         self._fd: int | None = None
+        self.shared = shared or SharedTx()  # the fd's write side, shared with the control kernel
         self._tx_lock = threading.Lock()
-        self._tx_pending = bytearray()
+        self._tx_buf = np.zeros(settings.tx_buffer_bytes, dtype=np.uint8)  # pending bytes: [0, _tx_len)
+        self._tx_len = 0
+        self._kernel_hb = False
         self._tx_seq = 0
         self._last_rx = -math.inf
         self._heartbeats_on = False
@@ -97,6 +110,7 @@ class LinkIo:
     # --- life cycle (the owner's thread) --------------------------------------------------------
     def start(self, fd: int) -> None:
         self._fd = fd
+        self.shared.open(fd)
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_w, False)
         self._stop.clear()
@@ -110,13 +124,22 @@ class LinkIo:
         th, self._thread = self._thread, None
         if th is not None and th is not threading.current_thread():
             th.join(timeout=2.0)
-        with self._tx_lock:
-            self._fd = None
+        self._forget_fd()
         for fd in (self._wake_r, self._wake_w):
             if fd >= 0:
                 with contextlib.suppress(OSError):
                     os.close(fd)
         self._wake_r = self._wake_w = -1
+
+    def _forget_fd(self) -> None:
+        with self._tx_lock:
+            self._fd = None
+            self.shared.close()  # the kernel writes no more to it either
+
+    def kernel_heartbeats(self, on: bool) -> None:
+        """The control kernel sends the heartbeats (this thread's schedule pauses), or no more."""
+        self._kernel_hb = on
+        self._wake()
 
     def heartbeats(self, on: bool) -> None:
         """Start (the first one now) or stop the heartbeat schedule."""
@@ -141,30 +164,38 @@ class LinkIo:
             if self._fd is None:
                 return False
             frame = encode_frame(self._tx_seq, msg_id, payload, self.sync)
-            if len(self._tx_pending) + len(frame) > self.settings.tx_buffer_bytes:
+            n = len(frame)
+            if self._tx_len + n > len(self._tx_buf):
                 self.stats.tx_dropped += 1
                 self._flush_locked()
                 return False
-            # SEQ only advances for frames that go out: a gap at the MCU is a loss on the wire
+            # SEQ only advances for frames that go out: a gap at the MCU is a loss on the wire.
+            # It skips the kernel's two (shared_tx.KERNEL_SEQ).
             self.sent[self._tx_seq] = tag
-            self._tx_seq = (self._tx_seq + 1) & 0xFFFF
-            self._tx_pending += frame
+            self._tx_seq = (self._tx_seq + 1) % IO_SEQ_MODULUS
+            self._tx_buf[self._tx_len : self._tx_len + n] = np.frombuffer(frame, dtype=np.uint8)
+            self._tx_len += n
             self.stats.frames_tx += 1
             self._flush_locked()
             return True
 
     def _flush_locked(self) -> None:
-        fd = self._fd
-        while self._tx_pending and fd is not None:
-            try:
-                n = os.write(fd, self._tx_pending)
-            except BlockingIOError:
+        shared = self.shared
+        while self._tx_len and self._fd is not None:
+            n = shared.write(self._tx_buf, 0, self._tx_len)
+            if n == BUSY or n == -errno.EAGAIN:  # the kernel's frame is half out, or the line full
                 return
-            except OSError as exc:  # the device went away; the reader reports it
-                self.tx_error = exc
-                self._tx_pending.clear()
+            if n < 0:  # the device went away; the reader reports it
+                self.tx_error = OSError(-n, os.strerror(-n))
+                self._tx_len = 0
                 return
-            del self._tx_pending[:n]
+            rest = self._tx_len - n
+            self._tx_buf[:rest] = self._tx_buf[n : self._tx_len].copy()
+            self._tx_len = rest
+
+    @property
+    def _tx_pending(self) -> bool:
+        return self._tx_len > 0
 
     def flush(self) -> None:
         with self._tx_lock:
@@ -181,11 +212,15 @@ class LinkIo:
                     return
                 now = time.monotonic()
                 timeout = IDLE_WAKE_S
-                if self._heartbeats_on:
+                if self._heartbeats_on and not self._kernel_hb:
                     timeout = min(timeout, self._next_hb - now)
                 if self.stats.link_up:
                     timeout = min(timeout, self._last_rx + self.settings.link_lost_s - now)
-                wlist = [fd] if self._tx_pending else []
+                if self._tx_pending and self.shared.torn_by_kernel:
+                    timeout = min(timeout, 1e-4)  # the kernel ends its frame next tick
+                    wlist = []
+                else:
+                    wlist = [fd] if self._tx_pending else []
                 try:
                     readable, writable, _ = select.select([fd, self._wake_r], wlist, [], max(0.0, timeout))
                 except (OSError, ValueError):  # closed under us: stopping
@@ -197,10 +232,10 @@ class LinkIo:
                     return
                 if fd in readable and not self._read(fd):
                     return
-                if writable:
+                if writable or self._tx_pending:
                     self.flush()
                 now = time.monotonic()
-                if self._heartbeats_on and now >= self._next_hb:
+                if self._heartbeats_on and not self._kernel_hb and now >= self._next_hb:
                     self._heartbeat(now)
                 if self.stats.link_up and now >= self._last_rx + self.settings.link_lost_s:
                     self._check_link()
@@ -254,8 +289,7 @@ class LinkIo:
 
     def _gone(self, why: str) -> None:
         self.tx_error = self.tx_error or OSError(why)
-        with self._tx_lock:
-            self._fd = None
+        self._forget_fd()
         self.on_gone(why)
         if self.stats.link_up:
             self._set_link(False)

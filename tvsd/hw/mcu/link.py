@@ -41,6 +41,7 @@ from tvsd.hw.mcu.messages import Identify, McuStats, StepperState
 from tvsd.hw.mcu.placement import StateSample
 from tvsd.hw.mcu.receiving import Receiver
 from tvsd.hw.mcu.settings import McuSettings
+from tvsd.hw.mcu.shared_tx import SharedTx
 from tvsd.hw.mcu.spec import ProtocolSpec, load_spec
 
 __all__ = [
@@ -76,9 +77,10 @@ class McuLink:
     """One MCU on one serial port. Use ``async with McuLink(settings) as link`` (open, identify,
     heartbeat), or call open() / identify() / start_heartbeat() / close() yourself.
 
-    ``liveness``: a count the heartbeat schedule checks (the control kernel's ticks, in the
-    daemon): a heartbeat goes only if it moved since the last one. ``io_priority``: SCHED_FIFO
-    for the I/O thread (``--realtime``)."""
+    ``liveness``: a count the heartbeat schedule checks (the control kernel's ticks): a
+    heartbeat goes only if it moved since the last one. ``io_priority``: SCHED_FIFO for the I/O
+    thread (``--realtime``). ``shared_tx``: the port's write side shared with the control kernel
+    (``Runner.tx``), which then sends the heartbeats itself (``kernel_heartbeats``)."""
 
     on_pulse = _ReceiverCallback()
     on_state = _ReceiverCallback()
@@ -102,6 +104,7 @@ class McuLink:
         on_refused: Callable[[Refusal], None] | None = None,
         liveness: Callable[[], int] | None = None,
         io_priority: int | None = None,
+        shared_tx: SharedTx | None = None,
     ) -> None:
         self.settings = settings
         self.spec = spec or load_spec(settings.spec_path)
@@ -122,6 +125,7 @@ class McuLink:
             heartbeat=self._heartbeat,
             liveness=liveness,
             priority=io_priority,
+            shared=shared_tx,
         )
         self._rx = Receiver(
             self.spec,
@@ -257,6 +261,13 @@ class McuLink:
         """Stop sending heartbeats: the MCU's watchdog then switches its outputs off."""
         self._io.heartbeats(False)
 
+    def kernel_heartbeats(self, on: bool) -> None:
+        """The control kernel sends the heartbeats (Runner.attach_link on ``shared_tx``): the
+        I/O thread's schedule pauses, and the kernel's acks feed the round trips and the clock
+        sync. Off: the I/O thread's schedule (if started) takes over again."""
+        self._rx.kernel_heartbeats = on
+        self._io.kernel_heartbeats(on)
+
     def start_heartbeat(self) -> None:
         """Heartbeats every settings.heartbeat_period_s from the I/O thread (while ``liveness``
         moves), the first one now."""
@@ -326,6 +337,14 @@ class McuLink:
     @property
     def tx_error(self) -> OSError | None:
         return self._io.tx_error
+
+    def message_id(self, name: str) -> int:
+        return self._ids[name].id
+
+    @property
+    def shared_tx(self) -> SharedTx:
+        """The port's write side (its byte counters; the control kernel's when it was given)."""
+        return self._io.shared
 
     @property
     def io_realtime(self) -> str:

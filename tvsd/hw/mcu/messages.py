@@ -85,6 +85,7 @@ class McuStats:
     duplicates: int  # repeated host frames the MCU dropped unexecuted
     rx_overflows: int  # received bytes the board's RX ring had no room for (a host burst)
     ticks_dropped: int  # control ticks the board's tick queue had no room for (a late main loop)
+    watchdog_expiries: int  # heartbeat watchdog cuts since boot (each also a fault frame, which can be lost)
 
 
 def ack_meaning(status: int, spec: ProtocolSpec | None = None) -> str:

@@ -42,6 +42,7 @@ from tvsd.hw.mcu.spec import ProtocolSpec
 log = logging.getLogger("tvsd.hw.mcu.link")  # the link's log, whichever part writes it
 
 REFUSAL_LOG_INTERVAL_S = 1.0  # the same refusal is logged at most this often (with a count)
+KERNEL_HB_FORGET_S = 2.0  # an ack this late is no round trip worth fitting (as link.HB_FORGET_S)
 EVENT_QUEUE = 4096  # events waiting for the event loop: pulses ~50/s, refusals up to the state rate
 
 
@@ -74,6 +75,9 @@ class Receiver:
         self.refusals: deque[Refusal] = deque(maxlen=64)
         self._refusal_log: dict[tuple[str, int], tuple[float, int]] = {}  # → (logged at, repeats since)
         self.hb_sent: dict[int, float] = {}  # host_us -> send time, by whichever thread sent it
+        # the control kernel sends heartbeats too (tvsd.control.link_tx): their host_us is the
+        # send time itself (CLOCK_MONOTONIC µs, as time.monotonic), so no table is needed
+        self.kernel_heartbeats = False
         self.hb_waiters: dict[int, asyncio.Future[float]] = {}
         self.identify_waiters: list[asyncio.Future[Identify]] = []
         self.stats_waiters: list[asyncio.Future[McuStats]] = []
@@ -157,6 +161,10 @@ class Receiver:
     def _on_heartbeat_ack(self, msg: HeartbeatAck, now: float) -> None:
         sent = self.hb_sent.pop(msg.host_us, None)
         ticks = self.placer.on_heartbeat_ack(msg.mcu_ticks, now)
+        if sent is None and self.kernel_heartbeats:
+            age = ((int(now * 1e6) - msg.host_us) & 0xFFFF_FFFF) / 1e6  # host_us wraps every 71 min
+            if age < KERNEL_HB_FORGET_S:
+                sent = now - age
         if sent is None:
             return  # an answer to a heartbeat we gave up on
         rtt = now - sent
