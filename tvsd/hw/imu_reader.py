@@ -1,7 +1,8 @@
 """IMU reader: drains both MPU6050 FIFOs in one thread, survives the bus, counts every loss.
 
 Policy lives here, mechanism in mpu6050.py. Per sensor, each poll reads FIFO_COUNT, the whole
-frames present, then INT_STATUS. Frames are held as *pending* until that status read says no
+frames present, then INT_STATUS (in the frames' last combined transfer: two round trips a
+poll). Frames are held as *pending* until that status read says no
 overflow happened while they sat in the FIFO (an overflow drops the oldest bytes and misaligns what
 follows); then they are delivered. A byte count that is not a whole number of frames also means
 misalignment (a failed transfer that popped part of a frame); so does any failed FIFO transfer
@@ -282,14 +283,14 @@ class SensorReader:
             self._last_data = t_count
         # frames read before a failed transfer stay pending: every transfer is whole frames
         try:
-            self.driver.read_frames(frames, self._pending)
+            overflow = self.driver.read_frames_then_overflow(frames, self._pending)
         except DeviceError as exc:
             # No ACK to the address: nothing moved. Any other failure may have popped part of
             # the FIFO, maybe whole frames (which the count cannot reveal): start over aligned.
             if exc.errno not in (errno.ENXIO, errno.EREMOTEIO):
                 self._need_resync = True
             raise
-        if self.driver.read_overflow():
+        if overflow:
             self._recover(overflow=True)
         else:
             self._deliver()
