@@ -218,3 +218,23 @@ def test_twin_dlpf_delays_what_the_datasheet_says_and_keeps_its_bandwidth(dlpf_c
     assert gd[0] / 1000.0 == pytest.approx(reg.DLPF_DELAY_S[dlpf_cfg], abs=2e-6)
     _, h = sosfreqz(sos, worN=[reg.DLPF_GYRO_BW_HZ[dlpf_cfg]], fs=1000.0)
     assert abs(h[0]) == pytest.approx(2**-0.5, rel=1e-3)  # the allpass changes no magnitude
+
+
+@pytest.mark.parametrize("frames_wanted", [1, 40, 41, 80])
+def test_frames_and_int_status_in_one_transfer_as_two_calls(frames_wanted):
+    """read_frames_then_overflow: the INT_STATUS read rides in the last FIFO transfer (one
+    round trip fewer per poll); the same frames, in order, and the same flag as read_frames
+    followed by read_overflow, at each transfer boundary (40 frames fit beside the status
+    pair, 42 without)."""
+    x = rig()
+    x.drv.start()
+    x.clock.sleep(frames_wanted / 1027 + 0.002)
+    frames: list[np.ndarray] = []
+    have = x.drv.fifo_count() // reg.FRAME_BYTES
+    assert have >= frames_wanted
+    assert not x.drv.read_frames_then_overflow(frames_wanted, frames)
+    n, ok = decode_counter(np.concatenate(frames))
+    assert ok.all() and len(n) == frames_wanted and np.all(np.diff(n) == 1)
+    x.clock.sleep(0.2)  # past the FIFO: the flag comes back with the next frames
+    assert x.drv.read_frames_then_overflow(2, frames)
+    assert not x.drv.read_frames_then_overflow(0, frames)  # INT_STATUS cleared by the read

@@ -17,9 +17,9 @@ SECONDS = 20.0
 @pytest.mark.slow
 @pytest.mark.xfail(
     strict=False,
-    reason="issue 13, open: with the link's thread, the SIL devices' process and the API's total "
-    "budget, a 60 s soak had 0 watchdog expiries and 0 link faults but 3 imu faults (IMU samples "
-    "lost across the SIL process boundary: README, Soak).",
+    reason="issue 13, open: under the API load the MCU link still faults on this shared machine "
+    "(3 of 3 runs: e.g. 2 watchdog expiries and a link loss in 20 s; 27 expiries in a 60 s bench "
+    "soak). The IMU faults are gone (0 in every soak since the bus fix; README, Soak).",
 )
 def test_a_short_soak_under_cpu_hogs_has_no_fault_and_no_watchdog_expiry() -> None:
     """`soak(20 s)`: the SIL daemon at 25 rev/s scanning and recording, a normal-priority CPU hog
@@ -54,20 +54,18 @@ def test_a_short_soak_under_cpu_hogs_alone_keeps_the_mcu_link() -> None:
     frames stopped" within 1–3 s. Tolerance: none, as above — a watchdog expiry or an MCU fault
     with nothing injected is a bug whatever the load; scanning goes on; every recording exports.
 
-    IMU faults (a sensor with no sample for its `lost_margin`) are issue 13's open part: with a
-    third hog beside the soak's two (a fresh-clone CI run) 3 came in 20 s, scanning went on (points
-    flagged no_imu). They make this test an xfail, named with their count, not a pass; every
-    other kind of fault fails it.
+    IMU faults (a sensor with no sample for its `lost_margin`) fail it too: the IMU's twins'
+    bus cost 6.6 ms a round trip and the FIFO overflowed every few polls (3 imu faults in 20 s
+    beside a third hog); since the bus fix (one sleep per transfer, the SIL process's switch
+    interval, fixed-rate polls, the reader above the event loop) 0 in 11 of 11 runs (3 of them
+    failed on MCU watchdog expiries instead, at load average 25-30 from other jobs). Samples lost
+    are printed, not asserted: their target (≤ 0.1 %) is the benchmark's, and a short run on a
+    machine others load measures the machine.
     """
     res = soak(SECONDS, clients=0, batches=False)
     print(json.dumps(res, indent=1))
-    counts = dict(res["soak_fault_counts"])
-    imu_faults = counts.pop("imu", 0)
     assert res["soak_watchdog_expiries"] == 0, res["soak_fault_counts"]
     assert res["soak_watchdog_expiries_firmware"] == 0, res  # the firmware's own count (its stats)
-    assert not counts, res["soak_fault_counts"]
+    assert res["soak_faults"] == 0, res["soak_fault_counts"]
     assert res["soak_state_end"] == "scanning"
     assert res["soak_recordings_exported"] == res["soak_recordings"], res["soak_export_errors"]
-    if imu_faults:
-        lost = res["soak_imu_lost"]
-        pytest.xfail(f"issue 13, open: {imu_faults} IMU fault(s) under the CPU hogs ({lost} samples lost)")

@@ -37,6 +37,7 @@ import asyncio
 import contextlib
 import logging
 import math
+import os
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -47,7 +48,7 @@ from tvsd.hw import imu_calibration as cal
 from tvsd.hw import mpu6050 as reg
 from tvsd.hw.i2c_bus import open_bus
 from tvsd.hw.imu_clock import Clock, MonotonicClock
-from tvsd.hw.imu_reader import ImuBatch, ImuReader, SensorReader
+from tvsd.hw.imu_reader import READER_PRIORITY, ImuBatch, ImuReader, SensorReader
 from tvsd.hw.mpu6050 import ImuSettings, Mpu6050, SMBusLike
 from tvsd.sim.imu_motion import LivePlant, MotionSource
 
@@ -66,6 +67,14 @@ SNAPSHOT_S = 0.2  # how often the reader thread refreshes a sensor's fitted rate
 
 OnBatch = Callable[[ImuBatch], None]
 OnState = Callable[[str, str], None]
+
+
+def _fifo_here() -> bool:
+    """Whether the calling thread runs SCHED_FIFO (the daemon's event loop under --realtime)."""
+    try:
+        return os.sched_getscheduler(0) == os.SCHED_FIFO
+    except (OSError, AttributeError):
+        return False
 
 
 def _json_float(x: object) -> object:
@@ -146,6 +155,8 @@ class ImuService:
         }
         self.bus = bus
         self.reader = ImuReader(list(self._sensors.values()), self.clock, self._sink, self._polled)
+        if _fifo_here():  # tvsd --realtime: the loop's thread is SCHED_FIFO; the reader above it
+            self.reader.priority = READER_PRIORITY
         self._t_start = self.clock.now()
         self._last_data.clear()
         self._snap.clear()
@@ -337,6 +348,8 @@ class ImuService:
             "lost_after_s": self.lost_after_s,
             "calibration": dict(self._calibration),
             "sensors": sensors,
+            "reader_fifo": self.reader.realtime if self.reader is not None else "not running",
+            **({"bus": stats()} if (stats := getattr(self.bus, "stats", None)) is not None else {}),
         }
 
     # --- calibration ---------------------------------------------------------------------------------

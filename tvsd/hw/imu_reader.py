@@ -1,7 +1,8 @@
 """IMU reader: drains both MPU6050 FIFOs in one thread, survives the bus, counts every loss.
 
 Policy lives here, mechanism in mpu6050.py. Per sensor, each poll reads FIFO_COUNT, the whole
-frames present, then INT_STATUS. Frames are held as *pending* until that status read says no
+frames present, then INT_STATUS (in the frames' last combined transfer: two round trips a
+poll). Frames are held as *pending* until that status read says no
 overflow happened while they sat in the FIFO (an overflow drops the oldest bytes and misaligns what
 follows); then they are delivered. A byte count that is not a whole number of frames also means
 misalignment (a failed transfer that popped part of a frame); so does any failed FIFO transfer
@@ -32,6 +33,7 @@ from __future__ import annotations
 import asyncio
 import errno
 import logging
+import os
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -46,6 +48,11 @@ from tvsd.hw.mpu6050 import ImuSettings, Mpu6050
 log = logging.getLogger(__name__)
 BACKOFF_MIN_S, BACKOFF_MAX_S = 0.005, 0.5
 FIFO_FRAMES = reg.FIFO_SIZE // reg.FRAME_BYTES  # 85: more samples than this unread overflow it
+# SCHED_FIFO priority of the reader thread when the daemon runs --realtime: above the event loop
+# and the threads it starts (40: it holds the GIL for whole RPC replies, and one hogged a core in
+# the soak), below the MCU link's I/O thread (60) and the control thread (80). The FIFO holds
+# 83 ms at 1 kHz: the reader may wait for the GIL, never for the loop's turn on the CPU.
+READER_PRIORITY = 50
 
 
 @dataclass(frozen=True)
@@ -95,6 +102,12 @@ class SensorReader:
         self._last_data = 0.0
         self._newest: tuple[int, int] | None = None  # (k, epoch) of the newest delivered sample
         self._cut_t = -np.inf  # host time of the latest FIFO reset (what it held is gone)
+        # timing of the reads (status): the longest gap between two FIFO count reads, how many
+        # were longer than the FIFO holds (it may have overflowed: the reader was late), the
+        # fullest FIFO seen, the longest poll (count read to status read: bus time)
+        self._t_count = np.nan
+        self.gap_max_s = self.poll_max_s = 0.0
+        self.late_polls = self.fifo_peak = 0
 
     def status(self) -> dict[str, object]:
         return {
@@ -109,6 +122,10 @@ class SensorReader:
             "resyncs": self.resyncs,
             "restarts": self.restarts,
             "last_error": self.last_error,
+            "poll_gap_max_ms": round(1e3 * self.gap_max_s, 2),
+            "late_polls": self.late_polls,
+            "fifo_peak_frames": self.fifo_peak,
+            "poll_max_ms": round(1e3 * self.poll_max_s, 2),
         }
 
     def poll(self) -> list[ImuBatch]:
@@ -123,10 +140,22 @@ class SensorReader:
             self._failures = 0
             if self.up:
                 self.state = "ok"
-            wait, self._wait_s = self._wait_s or self.settings.poll_interval_s, 0.0
-            self.next_time = self.clock.now() + wait
+            self.next_time = self._next_due()
         ready, self._ready = self._ready, []
         return ready
+
+    def _next_due(self) -> float:
+        """After a good poll: a bring-up stage's wait from now; else the next poll at a fixed
+        rate, one interval after this one was due, so the polls' bus time does not stretch the
+        period (at 1 kHz the frames take ~30 % of a 400 kHz bus per sensor: bus_budget; waiting
+        a whole interval after each poll made the period 29 ms, 35 % of the FIFO's 83 ms).
+        Late (the poll took longer than the interval): at once, the schedule from now."""
+        now = self.clock.now()
+        if self._wait_s:
+            wait, self._wait_s = self._wait_s, 0.0
+            return now + wait
+        due = self.next_time + self.settings.poll_interval_s
+        return due if due > now else now
 
     def _failed(self, message: str) -> None:
         if not self.up:
@@ -241,6 +270,7 @@ class SensorReader:
         count = self.driver.fifo_count()
         t_count = self.clock.now()  # after the read: see ClockFit.t0
         frames = count // reg.FRAME_BYTES
+        self._timing(t_count, frames)
         if count % reg.FRAME_BYTES:  # part of a frame went missing: the FIFO is misaligned
             self._recover(overflow=self.driver.read_overflow())
             return
@@ -253,17 +283,27 @@ class SensorReader:
             self._last_data = t_count
         # frames read before a failed transfer stay pending: every transfer is whole frames
         try:
-            self.driver.read_frames(frames, self._pending)
+            overflow = self.driver.read_frames_then_overflow(frames, self._pending)
         except DeviceError as exc:
             # No ACK to the address: nothing moved. Any other failure may have popped part of
             # the FIFO, maybe whole frames (which the count cannot reveal): start over aligned.
             if exc.errno not in (errno.ENXIO, errno.EREMOTEIO):
                 self._need_resync = True
             raise
-        if self.driver.read_overflow():
+        if overflow:
             self._recover(overflow=True)
         else:
             self._deliver()
+        self.poll_max_s = max(self.poll_max_s, self.clock.now() - t_count)
+
+    def _timing(self, t_count: float, frames: int) -> None:
+        gap = t_count - self._t_count  # NaN at the first read
+        self._t_count = t_count
+        self.fifo_peak = max(self.fifo_peak, frames)
+        if gap > self.gap_max_s:
+            self.gap_max_s = gap
+        if gap > FIFO_FRAMES / self.settings.sample_rate_hz:
+            self.late_polls += 1
 
     def _open_epoch(self, t_count: float, frames: int) -> None:
         if not self.samples or not self.fit.points:  # losses count from the first delivery
@@ -328,6 +368,8 @@ class ImuReader:
         (data or not: a sensor gone for good still has a state and a growing loss), both on the
         polling thread."""
         self.sensors, self.clock, self.on_batch, self.on_poll = sensors, clock, on_batch, on_poll
+        self.priority: int | None = None  # SCHED_FIFO for the thread (start()), if set
+        self.realtime = "not requested"  # what the OS said to it
         self._stop = threading.Event()
         self._lock = threading.Lock()  # status() may come from another thread than the polls
         self._thread: threading.Thread | None = None
@@ -370,6 +412,13 @@ class ImuReader:
         self._thread.start()
 
     def _run(self) -> None:
+        if self.priority is not None:
+            try:  # pid 0: this thread
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.priority))
+                self.realtime = f"granted (priority {self.priority})"
+            except OSError as exc:
+                self.realtime = f"refused: {exc.strerror or exc}"
+                log.warning("IMU reader thread SCHED_FIFO %s", self.realtime)
         while not self._stop.is_set():
             self.step()
             self._wait()

@@ -277,6 +277,11 @@ class McuPlant:
             return np.full_like(t, self.t)
         return p.sim0 + (t - wall0) * self.speed
 
+    def _host_to_sim_s(self, t_host: float) -> float:
+        """host_to_sim for one time; NaN before the pacing starts."""
+        p = self.pacing
+        return p.sim0 + (t_host - p.wall0) * self.speed
+
     def covered_host(self) -> float:
         """Host time up to which the ring holds the plant (its newest chunk's end on the pacing
         line: up to a chunk and a wake-up behind the line's present); NaN before pacing starts."""
@@ -307,6 +312,7 @@ class McuPlant:
         self._stop.clear()
         self.mcu.log_pwm()
         self._pwm_pending, self._duty = deque(), self.mcu.pwm_duty
+        self.mcu.rx_timeline = self._host_to_sim_s  # host bytes enter the core at their arrival
         self._thread = threading.Thread(target=self._paced, name="mcu-plant", daemon=True)
         self._thread.start()
 
@@ -315,6 +321,8 @@ class McuPlant:
         if self._thread is not None:
             self._thread.join(timeout=5.0)
             self._thread = None
+        self.mcu.rx_timeline = None  # the clock holds now: host bytes go in as they come
+        self.mcu.flush_rx()
         if self._error is not None:
             raise RuntimeError("the paced plant thread failed") from self._error
 

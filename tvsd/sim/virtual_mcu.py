@@ -42,6 +42,8 @@ import tempfile
 import threading
 import time
 import tty
+from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 from typing import Literal
@@ -194,6 +196,14 @@ class VirtualMcu:
         # enabled (log_pwm): a paced plant applies each from its arrival, as a motor would.
         self._pwm_log: list[tuple[float, float]] | None = None
         self._logged_pwm = 0
+        # Manual clock: host time (time.monotonic) -> core seconds, set by a paced plant
+        # (McuPlant.start). Host bytes then enter the core at their arrival's time on that line,
+        # not at whatever time the core has reached when the pump reads them: a plant that fell
+        # behind and catches up runs through the heartbeats that came meanwhile in order, instead
+        # of getting them all at its stale time and then a gap the wire never had (the
+        # firmware's watchdog expired on it). (core ticks, arrival, bytes), in arrival order.
+        self.rx_timeline: Callable[[float], float] | None = None
+        self._rx_queue: deque[tuple[int, float, bytes]] = deque()
         self._thread = threading.Thread(target=self._pump, name="virtual-mcu", daemon=True)
         self._thread.start()
 
@@ -228,12 +238,37 @@ class VirtualMcu:
             self._advance_locked(self._ticks(t_s))
 
     def _advance_locked(self, ticks: int) -> None:
-        """Run the core to `ticks` in UART slices, draining its TX ring after each (lock held)."""
+        """Run the core to `ticks` in UART slices, draining its TX ring after each, and the
+        queued host bytes in at their times (lock held)."""
         now = int(self._lib.vmcu_now())
+        queue = self._rx_queue
+        while queue and queue[0][0] <= now:
+            self._rx_locked(*queue.popleft()[1:])
         while now < ticks:
             now = min(ticks, now + self._slice_ticks)
+            if queue and queue[0][0] < now:
+                now = queue[0][0]  # stop where the next host bytes arrived
             self._lib.vmcu_advance_to(now)
+            while queue and queue[0][0] <= now:
+                self._rx_locked(*queue.popleft()[1:])
             self._drain_locked()
+
+    def flush_rx(self) -> None:
+        """Host bytes still queued for a later core time go in now (the plant stopped)."""
+        with self._lock:
+            while self._rx_queue:
+                self._rx_locked(*self._rx_queue.popleft()[1:])
+
+    def _rx_locked(self, arrival: float, data: bytes) -> None:
+        """Host bytes into the core's UART (lock held); a PWM change they made is logged with
+        their arrival time."""
+        raw = (ctypes.c_uint8 * len(data)).from_buffer_copy(data)
+        self._lib.vmcu_rx_bytes(raw, len(data))
+        if self._pwm_log is not None:
+            pwm = int(self._lib.vmcu_pwm())
+            if pwm != self._logged_pwm:
+                self._pwm_log.append((arrival, pwm / _DUTY_FULL))
+                self._logged_pwm = pwm
 
     def _drain_locked(self) -> None:
         # Leave bytes in the core's TX ring when the reader is this far behind: the ring then
@@ -353,6 +388,9 @@ class VirtualMcu:
                     data = b""
                 except OSError:  # pty gone (closing)
                     return
+            arrival = time.monotonic()  # before the lock: a plant holding it does not delay it
+            timeline = self.rx_timeline
+            at = math.nan if timeline is None or not data else timeline(arrival)
             with self._lock:
                 # Time first: received bytes are handled at the time they arrived, so a
                 # heartbeat_ack's mcu_ticks matches the host's clock to the pump's latency.
@@ -365,13 +403,11 @@ class VirtualMcu:
                         self._backlog.clear()
                         self._drain_locked()
                 if data:
-                    raw = (ctypes.c_uint8 * len(data)).from_buffer_copy(data)
-                    self._lib.vmcu_rx_bytes(raw, len(data))
-                    if self._pwm_log is not None:
-                        pwm = int(self._lib.vmcu_pwm())
-                        if pwm != self._logged_pwm:
-                            self._pwm_log.append((time.monotonic(), pwm / _DUTY_FULL))
-                            self._logged_pwm = pwm
+                    when = self._ticks(at) if math.isfinite(at) else -1
+                    if self._rx_queue or when > int(self._lib.vmcu_now()):
+                        self._rx_queue.append((when, arrival, data))  # ahead of the core: later
+                    else:
+                        self._rx_locked(arrival, data)
                 self._drain_locked()
                 if self._backlog:  # non-blocking; under the lock, as advances append to it
                     try:
