@@ -54,7 +54,7 @@ from tvsd.daemon.soak_load import (
 )
 from tvsd.daemon.state import DaemonState
 from tvsd.errors import DeviceError
-from tvsd.rpc.client import RpcClient
+from tvsd.rpc.client import RemoteDeviceError, RpcClient
 
 RPS = 25.0
 CLIENTS = 50
@@ -107,17 +107,23 @@ def _spin_up(daemon: _Daemon, ctl: RpcClient) -> dict[str, int]:
     from the soak's (which count from the load's start)."""
     first: dict[str, int] = ctl.call("status")["fault_counts"]  # type: ignore[index]
     deadline = time.monotonic() + START_TIMEOUT_S
-    ctl.call("speed", rps=RPS)
+    asked = False
     while True:
         st: Any = ctl.call("status")
         seen = {k: v - first.get(k, 0) for k, v in st["fault_counts"].items() if v > first.get(k, 0)}
-        if st["state"] == DaemonState.FAULT:
-            ctl.call("faults_clear")
-            ctl.call("speed", rps=RPS)
-        elif abs(float(st["rps"]) - RPS) <= 0.5:
-            ctl.call("scan_start")
-            if ctl.call("status")["state"] == DaemonState.SCANNING:  # type: ignore[index]
-                return seen
+        # A fault can land between this status and the next call: the call is refused
+        # (RemoteDeviceError) and the next round clears it.
+        with contextlib.suppress(RemoteDeviceError):
+            if st["state"] == DaemonState.FAULT:
+                ctl.call("faults_clear")
+                asked = False
+            elif not asked:
+                ctl.call("speed", rps=RPS)
+                asked = True
+            elif abs(float(st["rps"]) - RPS) <= 0.5:
+                ctl.call("scan_start")
+                if ctl.call("status")["state"] == DaemonState.SCANNING:  # type: ignore[index]
+                    return seen
         if time.monotonic() > deadline:
             raise daemon.fail(f"not scanning at {RPS:g} rev/s within {START_TIMEOUT_S:g} s (faults {seen})")
         time.sleep(0.2)
