@@ -5,16 +5,17 @@
 
 `save` analyses the 13 bench-dev recordings (../shared/data/bench-dev) and N seeded cases of the
 randomised matrix (tvsd.analysis.matrix, open and closed loop; their recordings are written once
-into DIR and reused) and keeps each JSON verdict (what `tvsctl analyze --json` prints) in FILE.
-`check` analyses the same files again and compares: the cause, every candidate's name, the
-decision and every string identical; numbers equal within float round-off (relative 1e-9, or
-1e-12 absolute near zero). Exit 1 on any difference, listing them.
+into DIR and reused) and keeps each JSON verdict (what `tvsctl analyze --json` prints) in FILE
+(gzipped when it ends in .gz). `check` analyses the same files again and compares: the cause,
+every candidate's name, the decision and every string identical; numbers equal within float
+round-off (relative 1e-9, or 1e-12 absolute near zero). Exit 1 on any difference, listing them.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import gzip
 import json
 import math
 import sys
@@ -111,9 +112,14 @@ def main() -> int:
         for path in files(args.cases, args.dir, args.bench_dev):
             out[path.name] = verdict(path)
             print(path.name, out[path.name]["cause"], flush=True)
-        args.file.write_text(json.dumps({"cases": args.cases, "verdicts": out}, indent=1))
+        text = json.dumps({"cases": args.cases, "verdicts": out}, indent=1)
+        if args.file.suffix == ".gz":
+            args.file.write_bytes(gzip.compress(text.encode()))
+        else:
+            args.file.write_text(text)
         return 0
-    saved = json.loads(args.file.read_text())
+    raw = args.file.read_bytes()
+    saved = json.loads(gzip.decompress(raw) if args.file.suffix == ".gz" else raw)
     bad = 0
     for path in files(saved["cases"], args.dir, args.bench_dev):
         diff = differences(saved["verdicts"][path.name], verdict(path))
