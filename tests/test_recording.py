@@ -69,3 +69,23 @@ def test_missing_and_binary_files(tmp_path):
     binary.write_bytes(b"\xff\xfe\x00\x01")
     with pytest.raises(DataFileError, match="not a text file"):
         read(binary)
+
+
+def test_whole_body_parse_equals_row_by_row_and_bad_rows_still_named(tmp_path):
+    """The reader parses the body in one pass and falls back to row by row only to name a bad
+    row: the values must be exactly float() of each field either way (same function), and a bad
+    row far into a good file is still the one named."""
+    from tvsd.recording import csvfile
+
+    fields = ["0.001", " 2.5", "+3", "-1e-3", "4.000000001", "1_0", "7e14", "-0.0"]
+    body = [",".join(fields[(k + j) % len(fields)] for j in range(4)) for k in range(64)]
+    fast = csvfile._parse_fast(body, 4)
+    slow = csvfile._parse_slow(body, 0, 4, lambda row, msg: DataFileError(msg))
+    assert fast is not None and np.array_equal(fast, slow)
+    assert np.array_equal(fast[:, 0], [float(fields[k % len(fields)]) for k in range(64)])
+    rows = "".join(f"{k / 1000:.3f},1.0,2.0,0.0\n" for k in range(500)).splitlines(keepends=True)
+    rows[400] = "0.400,1.0,2.0,1e309\n"
+    path = tmp_path / "late.csv"
+    path.write_text(GOOD + "".join(rows))
+    with pytest.raises(DataFileError, match=r"row 405: NaN or infinite"):
+        read(path)

@@ -1,55 +1,149 @@
-"""Benchmark of the model doctor: a 60 s, 1 kHz recording analysed in one process."""
+"""Benchmark of the model doctor (`tvsctl bench --only doctor`).
+
+1. `tvsctl analyze` of a 60 s, 1 kHz recording, each run a child process measured by wait4: wall,
+   CPU (user + system: what a loaded machine charges) and peak resident memory of that child
+   alone. Cold: numba's cache empty (NUMBA_CACHE_DIR pointed at a fresh directory), so the
+   compiled kernels are built; warm: the same directory again, loaded. An open-loop staircase
+   with a hidden dead zone, and a closed-loop scanning recording with tvsctl identify's excitation.
+2. The randomised matrix (tvsd.analysis.matrix), open and closed loop, its cases spread over
+   worker processes: every case is seeded and BLAS runs on one thread, so the answers are the
+   serial run's (tests/test_doctor_bench.py); `cases` keeps a spread subset for a quick run.
+"""
 
 from __future__ import annotations
 
-import resource
+import os
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_all_start_methods, get_context
 from pathlib import Path
+from statistics import median
+from typing import Any
+
+WARM_REPEATS = 3
+RECORDINGS = {  # figure key -> (profile, effect)
+    "analyze_60s_open": ("steps", "deadzone:u0=0.8"),
+    "analyze_60s_closed": ("identify", None),
+}
 
 
-def bench_doctor() -> dict[str, object]:
-    """The 60 s timing, then the randomised matrix (tvsd.analysis.matrix: ≥ 50 nulls), open loop
-    and closed loop (scanning with tvsctl identify's excitation)."""
-    from tvsd.analysis.matrix import run
+def bench_doctor(
+    cases: int | None = None, workers: int | None = None, progress: Callable[[str], None] | None = None
+) -> dict[str, Any]:
+    """The 60 s timings, then the matrix, open and closed loop (all its cases, or `cases` of each)."""
+    say = progress or (lambda _msg: None)
+    out: dict[str, Any] = {"doctor_load_avg_at_start": round(os.getloadavg()[0], 1)}  # wall reads by it
+    for key, (profile, effect) in RECORDINGS.items():
+        say(f"timing tvsctl analyze on a 60 s {profile} recording (cold, then warm ×{WARM_REPEATS})")
+        out.update(bench_analyze(key, profile, effect))
+    for loop in ("open", "closed"):
+        say(f"matrix, {loop} loop")
+        out.update(run_matrix(loop, cases=cases, workers=workers))
+    return out
 
-    return {**bench_analyze(), **run(loop="open"), **run(loop="closed")}
+
+def _child(cmd: list[str], env: dict[str, str]) -> tuple[float, float, float]:
+    """(wall s, CPU s, peak RSS MiB) of one child process, from its own rusage (wait4)."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, ru = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t0
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+    if proc.stderr:
+        proc.stderr.close()
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd[2:5])} … exited {proc.returncode}: {err.strip()[-300:]}")
+    return wall, ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024.0
 
 
-def bench_analyze(seconds: float = 60.0) -> dict[str, float]:
-    """Wall time and peak memory of `tvsctl analyze` on a SIL staircase with a hidden dead zone.
-
-    Runs in a child process so its peak resident memory is its own (getrusage of the children).
-    """
+def bench_analyze(
+    key: str = "analyze_60s_open", profile: str = "steps", effect: str | None = None, seconds: float = 60.0
+) -> dict[str, float]:
+    cli = [sys.executable, "-m", "tvsd.cli.main"]
     with tempfile.TemporaryDirectory() as tmp:
         rec = Path(tmp) / "bench.csv"
-        cli = [sys.executable, "-m", "tvsd.cli.main"]
-        subprocess.run(
-            [
-                *cli,
-                "sim",
-                "record",
-                "--out",
-                str(rec),
-                "--seconds",
-                f"{seconds:g}",
-                "--effect",
-                "deadzone:u0=0.8",
-                "--seed",
-                "7",
-            ],
-            check=True,
-            capture_output=True,
-        )
-        before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-        t0 = time.perf_counter()
-        subprocess.run([*cli, "analyze", str(rec), "--json", "--quiet"], check=True, capture_output=True)
-        wall = time.perf_counter() - t0
-        peak_kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        record = [*cli, "sim", "record", "--out", str(rec), "--profile", profile]
+        record += ["--seconds", f"{seconds:g}", "--seed", "7"]
+        if effect:
+            record += ["--effect", effect]
+        env = {**os.environ, "NUMBA_CACHE_DIR": str(Path(tmp) / "numba-cache")}
+        _child(record, env)
+        analyze = [*cli, "analyze", str(rec), "--json", "--quiet"]
+        cold = _child(analyze, env)
+        warm = [_child(analyze, env) for _ in range(WARM_REPEATS)]
     return {
-        "analyze_60s_recording_s": wall,
-        "analyze_peak_rss_mib": max(peak_kib, before) / 1024.0,
-        "analyze_recording_s": seconds,
+        f"{key}_wall_s": median(w[0] for w in warm),
+        f"{key}_cpu_s": median(w[1] for w in warm),
+        f"{key}_peak_rss_mib": max(w[2] for w in warm),
+        f"{key}_cold_wall_s": cold[0],
+        f"{key}_cold_cpu_s": cold[1],
     }
+
+
+def _one_blas_thread() -> None:
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1, user_api="blas")
+
+
+def _case(args: tuple[Any, float, str]) -> dict[str, Any]:
+    from tvsd.analysis.matrix import run_case
+
+    case, seconds, tmp = args
+    return run_case(case, seconds, Path(tmp))
+
+
+def spread(items: list[Any], n: int | None) -> list[Any]:
+    """n items spread evenly over the list (nulls and every cause and size), or all of them."""
+    if n is None or n >= len(items):
+        return list(items)
+    step = len(items) / n
+    return [items[int(k * step)] for k in range(n)]
+
+
+def run_matrix(
+    loop: str = "open",
+    cases: int | None = None,
+    workers: int | None = None,
+    n_null: int = 50,
+    reps: int = 3,
+    seconds: float = 30.0,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """tvsd.analysis.matrix.run's figures, its cases over `workers` processes (default: one per
+    core), keyed doctor_<loop>_…, with the matrix's wall time, CPU time and worker count."""
+    from tvsd.analysis import matrix as M
+
+    profiles = M.OPEN_PROFILES if loop == "open" else M.CLOSED_PROFILES
+    picked = spread(M.cases(n_null, reps, seed, None, profiles), cases)
+    workers = max(1, min(workers or os.cpu_count() or 1, len(picked)))
+    cpu0 = _cpu_s()
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        jobs = [(c, seconds, tmp) for c in picked]
+        if workers == 1:
+            _one_blas_thread()
+            results = [_case(j) for j in jobs]
+        else:
+            # fork: the workers start with the modules loaded, and a caller's script needs no
+            # `if __name__ == "__main__"` guard (spawn would run it again in each worker).
+            ctx = get_context("fork" if "fork" in get_all_start_methods() else "spawn")
+            with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_one_blas_thread) as pool:
+                results = list(pool.map(_case, jobs))
+    wall = time.perf_counter() - t0
+    key = f"doctor_{loop}"
+    figures = M.summarise(results, key, wall)
+    figures[f"{key}_workers"] = workers
+    figures[f"{key}_cpu_s"] = _cpu_s() - cpu0
+    return figures
+
+
+def _cpu_s() -> float:
+    """CPU seconds of this process and its finished children (the pool's workers once joined)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system

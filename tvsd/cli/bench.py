@@ -79,10 +79,16 @@ def _fuzz(frames: int = 1_000_000) -> dict[str, Any]:
     return bench_fuzz(frames)
 
 
-def _doctor() -> dict[str, Any]:
+def _doctor(args: argparse.Namespace | None = None) -> dict[str, Any]:
     from tvsd.analysis.bench import bench_doctor
+    from tvsd.cli.progress import on_terminal
 
-    return bench_doctor()
+    def say(message: str) -> None:
+        if on_terminal():
+            print(f"  doctor: {message}", file=sys.stderr, flush=True)
+
+    cases, workers = (args.cases, args.workers) if args is not None else (None, None)
+    return bench_doctor(cases=cases, workers=workers, progress=say)
 
 
 def _api() -> dict[str, Any]:
@@ -140,6 +146,19 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--seconds", type=_positive_float, default=600.0, metavar="S", help="soak: its length (default 600)"
     )
     p.add_argument(
+        "--cases",
+        type=_cases,
+        metavar="N",
+        help="doctor: N matrix cases per loop, spread over nulls, causes and sizes (default: all 158; "
+        "20 take ~5 min on 2 cores)",
+    )
+    p.add_argument(
+        "--workers",
+        type=_workers,
+        metavar="N",
+        help="doctor: processes the matrix's cases run in (default: one per core; answers as serial)",
+    )
+    p.add_argument(
         "--clients",
         type=_clients,
         default=50,
@@ -173,6 +192,8 @@ def _whole(low: int, high: int, what: str) -> Callable[[str], int]:
 
 _positive_int = _whole(1, 2**62, "a whole number of frames >= 1")
 _clients = _whole(1, 1000, "a number of clients 1..1000")
+_cases = _whole(1, 100_000, "a number of matrix cases >= 1")
+_workers = _whole(1, 256, "a number of worker processes 1..256")
 
 
 def _positive_float(text: str) -> float:
@@ -203,7 +224,13 @@ def _run(args: argparse.Namespace) -> int:
             if name in ON_REQUEST:
                 got = ON_REQUEST[name](args)
             else:
-                got = BENCHES[name](args.frames) if name == "fuzz" else BENCHES[name]()
+                got = (
+                    BENCHES[name](args.frames)
+                    if name == "fuzz"
+                    else _doctor(args)
+                    if name == "doctor"
+                    else BENCHES[name]()
+                )
             figures.update(got)
             done.append(name)
             if not args.json:  # each group as it finishes: a long suite is never silent
