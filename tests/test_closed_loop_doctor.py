@@ -116,3 +116,46 @@ def test_a_seeded_closed_loop_subset_is_named(tmp_path: Path) -> None:
         picked.append(case)
     found = [matrix.run_case(c, 30.0, tmp_path)["found"] for c in picked]
     assert found == list(SUBSET), list(zip(picked, found, strict=True))
+
+
+def test_the_closed_loop_batch_plan_is_balanced_round_by_round_and_pairs_with_its_subsets() -> None:
+    """Every round holds each cause at each size once and its share of the nulls, so a batch cut
+    short is balanced; a --rounds/--causes subset draws the same cases (same seeds, plants,
+    effects) as the full plan, so runs with another excitation compare case by case."""
+    from tvsd.analysis import matrix_closed as MC
+
+    sizes = (3.0, 10.0)
+    full = MC.plan(n_null=6, reps=3, sizes=sizes, seed=0)
+    per_round = MC.round_length(6, 3, sizes)
+    assert len(full) == 3 * per_round
+    causes = {c.cause for c in full} - {"none"}
+    for r in range(3):
+        rnd = full[r * per_round : (r + 1) * per_round]
+        assert sorted((c.cause, c.size) for c in rnd if c.cause != "none") == sorted(
+            (c, m) for c in causes for m in sizes
+        )
+        assert sum(c.cause == "none" for c in rnd) == 2
+    again = MC.plan(n_null=6, reps=3, sizes=sizes, seed=0)
+    assert again == full and MC.plan(n_null=6, reps=3, sizes=sizes, seed=1) != full
+    assert all(c.profile == "identify" and 1.5 <= c.rps <= matrix.CLOSED_RPS for c in full)
+
+
+def test_the_identify_profile_with_a_reversal_turns_the_shaft_backwards_and_back(tmp_path: Path) -> None:
+    """With `reversal` in identify.kinds the closed loop follows the reference through zero to
+    −reversal_rps and back to the setpoint (the ramp at scan_accel_rps2: 1.2 s each way for
+    10 + 2 rev/s at 10 rev/s²); the command opposes the motion while it brakes (what makes a dead
+    zone differ from Coulomb friction) and the speed spends the hold at the negative level
+    (seed 4: 2.15 s below −1 rev/s, minimum −2.09)."""
+    cfg = load_config()
+    ident = dataclasses.replace(cfg.identify, kinds=("steps", "multisine", "prbs", "reversal"))
+    cfg = dataclasses.replace(cfg, identify=ident)
+    path = tmp_path / "rev.csv"
+    record(cfg, path, "identify", 12.0, (), seed=4, rps=10.0)
+    rec = read(path)
+    rps = rec.omega / (2 * math.pi)
+    back = rps < -0.5 * ident.reversal_rps  # the steps (±step_rps) go on during the hold
+    assert np.count_nonzero(back) * 1e-3 > 0.8 * ident.reversal_hold_s
+    assert np.min(rps) > -ident.reversal_rps - ident.step_rps - ident.multisine_rps - 0.5
+    assert abs(np.mean(rps[-500:]) - 10.0) < 1.0  # back at the setpoint by the end
+    assert np.count_nonzero((rec.u < 0) & (rec.omega > 0)) > 200  # braking: u against ω
+    assert np.count_nonzero((rec.u > 0) & (rec.omega < 0)) > 100

@@ -19,11 +19,12 @@ from pathlib import Path
 
 import pytest
 from conftest import RELAXED_FAILSAFE, daemon_config
-from test_daemon import _daemon, spin_to, tvsctl
+from test_daemon import _daemon, spin_to, tvsctl, wait_status
 
 HIDDEN = "imbalance:amplitude=2e-4,phase=0.5"
 RPS = 25.0
 ROOT = Path(__file__).resolve().parents[1]
+ATTEMPTS = 3  # identify runs aborted because the speed strayed (a stalled daemon), then given up
 
 
 @pytest.fixture
@@ -39,8 +40,19 @@ def hidden_daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path,
 def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_path):
     _, sock, _ = hidden_daemon
     spin_to(sock, RPS, timeout=60)
-    run = json.loads(tvsctl(sock, "identify", "--seconds", "20", "--json", "--timeout", "180").stdout)
-    assert run["outcome"] == "done", run
+    run: dict = {}
+    for _ in range(ATTEMPTS):
+        proc = tvsctl(sock, "identify", "--seconds", "20", "--json", "--timeout", "180", check=False)
+        run = json.loads(proc.stdout) if proc.stdout.strip() else {"refused": proc.stderr}
+        if run.get("outcome") == "done":
+            break
+        # a refusal while the speed is off its setpoint, or a run aborted because it strayed (a
+        # stall of this non-realtime daemon on a loaded machine): the safety checks did their job;
+        # back at the setpoint, the run again. Anything else fails below.
+        if not ("settles" in str(run.get("refused")) or "strayed" in str(run.get("reason"))):
+            break
+        wait_status(sock, lambda s: abs(s["rps"] - RPS) < 0.5, 60, f"{RPS} rev/s again", fault_ends=True)
+    assert run.get("outcome") == "done", run
     out = tmp_path / "identify.csv"
     cli = [sys.executable, "-m", "tvsd.cli.main"]
     exp = subprocess.run(
