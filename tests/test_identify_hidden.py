@@ -32,7 +32,13 @@ def hidden_daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path,
     sil = (ROOT / "config" / "sil.yaml").read_text()
     assert "\neffects: []" in sil, "config/sil.yaml's effects line changed: update the test"
     (tmp_path / "sil.yaml").write_text(sil.replace("\neffects: []", f'\neffects: ["{HIDDEN}"]'))
-    changes = {**RELAXED_FAILSAFE, "sil_profile: sil.yaml": f"sil_profile: {tmp_path / 'sil.yaml'}"}
+    changes = {
+        **RELAXED_FAILSAFE,
+        # the SIL devices' process answers the MCU handshake late on a loaded machine (the daemon
+        # then stops at start-up: "stopping" before the first command)
+        "  identify_timeout_ms: 500 ": "  identify_timeout_ms: 10000 ",
+        "sil_profile: sil.yaml": f"sil_profile: {tmp_path / 'sil.yaml'}",
+    }
     yield from _daemon(tmp_path, daemon_config(tmp_path, changes))
 
 
