@@ -5,8 +5,10 @@ The hidden effect is an imbalance of 2e-4 N·m at 25 rev/s (the SIL profile's `e
 daemon's recording does not carry): ≈ 6× the matrix's base size for the config's plant (0.5·J),
 where the closed-loop matrix names imbalance in every case from 3× (README, "Closed loop"); offline
 the same excitation named it on 2 of 2 seeds, with `none` on the two null runs. The daemon runs
-with the fail-safe times widened (conftest.RELAXED_FAILSAFE), as every SIL daemon test does: this
-test is about the doctor's answer, not the fail-safe's timing.
+with the fail-safe times widened (conftest.RELAXED_FAILSAFE), as every SIL daemon test does, the
+MCU handshake and identify's speed check widened too, and --realtime: this test is about the
+doctor's answer on a clean recording, not the fail-safe's timing (test_identify_daemon.py and
+test_daemon.py test those). A recording that shows the daemon stalled is skipped, with the reason.
 """
 
 from __future__ import annotations
@@ -21,9 +23,12 @@ import pytest
 from conftest import RELAXED_FAILSAFE, daemon_config
 from test_daemon import _daemon, spin_to, tvsctl, wait_status
 
+from tvsd.recording.csvfile import read
+
 HIDDEN = "imbalance:amplitude=2e-4,phase=0.5"
 RPS = 25.0
 ROOT = Path(__file__).resolve().parents[1]
+MAX_GAPS = 50  # filled 1 ms stretches: the README's run 0; --realtime runs at load 20: 9-22
 ATTEMPTS = 3  # identify runs aborted because the speed strayed (a stalled daemon), then given up
 
 
@@ -37,9 +42,15 @@ def hidden_daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path,
         # the SIL devices' process answers the MCU handshake late on a loaded machine (the daemon
         # then stops at start-up: "stopping" before the first command)
         "  identify_timeout_ms: 500 ": "  identify_timeout_ms: 10000 ",
+        # a stall of this non-realtime daemon lets the speed stray past 3 rev/s (4.85 seen at load
+        # 20), which aborts the run (its safety check, tested in test_identify_daemon.py)
+        "  abort_error_rps: 3.0 ": "  abort_error_rps: 10.0 ",
         "sil_profile: sil.yaml": f"sil_profile: {tmp_path / 'sil.yaml'}",
     }
-    yield from _daemon(tmp_path, daemon_config(tmp_path, changes))
+    # --realtime, as `make run` and the scanner run it: at normal priority on a loaded machine the
+    # daemon stalls, and a recording with stalls (filled gaps, speed excursions) is not what the
+    # doctor is judged on here. (On this shared machine: under `flock /work/wt/soak.lock`.)
+    yield from _daemon(tmp_path, daemon_config(tmp_path, changes), realtime=True)
 
 
 @pytest.mark.slow
@@ -65,6 +76,12 @@ def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_p
         [*cli, "export", run["recording"], "--csv", str(out)], capture_output=True, text=True, timeout=120
     )
     assert exp.returncode == 0, exp.stderr
+    meta = read(out).meta
+    if int(meta["gaps"]) > MAX_GAPS or int(meta["faults"]) > 0:
+        pytest.skip(
+            f"the daemon stalled during the run ({meta['gaps']} gaps, {meta['faults']} faults in its "
+            "recording): not the recording this test judges the doctor on; run it without CPU hogs"
+        )
     header = next(line for line in out.read_text().splitlines() if not line.startswith("#"))
     assert {"omega_ref", "phi_ref", "u_exc"} <= set(header.split(","))
     ana = subprocess.run(
