@@ -28,7 +28,7 @@ from tvsd.recording.csvfile import read
 HIDDEN = "imbalance:amplitude=2e-4,phase=0.5"
 RPS = 25.0
 ROOT = Path(__file__).resolve().parents[1]
-MAX_GAPS = 50  # filled 1 ms stretches: the README's run 0; --realtime runs at load 20: 9-22 (named)
+MAX_GAPS = 50  # filled 1 ms stretches: the README's run 0; --realtime runs at load 20: 9-22
 ATTEMPTS = 3  # identify runs aborted because the speed strayed (a stalled daemon), then given up
 
 
