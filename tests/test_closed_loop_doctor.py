@@ -72,6 +72,29 @@ def test_the_identify_profile_moves_the_reference_and_the_iv_path_takes_it(tmp_p
     assert fs.r2_u > 0.5 and fs.r2_speed > 0.99
 
 
+def test_the_identify_profile_records_its_prbs_and_it_instruments_the_command(tmp_path: Path) -> None:
+    """`u_exc` holds the voltage identify added after the law: 0 before the excitation starts,
+    ±prbs_v after it (bits of 4 ms on whole 1 ms samples). The PRBS is exogenous and broadband,
+    so the first stage predicts more of the command with it than from the reference alone, given
+    segments enough for its Wiener filter (30 s, the matrix's length; on 8 s it is no better)."""
+    cfg = load_config()
+    path = tmp_path / "id.csv"
+    record(cfg, path, "identify", 30.0, (), seed=2, rps=10.0)
+    rec = read(path)
+    start = float(rec.meta["excitation_start_s"])
+    exc = rec.extra["u_exc"]
+    assert not np.any(exc[rec.t < start - 1e-3])
+    late = exc[rec.t >= start + 1e-3]
+    assert np.max(np.abs(late)) <= cfg.identify.prbs_v + 1e-9
+    # a bit edge falls inside a sample only where the row index rounds across (11 of 28 000 seen)
+    assert np.mean(np.isclose(np.abs(late), cfg.identify.prbs_v)) > 0.999
+    data = load(path, cfg)
+    assert instrument.excited(data)
+    prep = prepare(data, Band())
+    with_exc, without = instrument.first_stage(prep, True), instrument.first_stage(prep, False)
+    assert with_exc.r2_u > without.r2_u + 0.02
+
+
 # Closed-loop subset (seed 0 of the matrix's closed-loop family, 30 s each, ≈ 5 s per case at load
 # 2, ≈ 70 s at load 30): two nulls and one case per cause at 30× its base. The seeds are fixed, so
 # the outcome is deterministic; what it stands for, measured on the matrix (README, "Closed
@@ -93,3 +116,46 @@ def test_a_seeded_closed_loop_subset_is_named(tmp_path: Path) -> None:
         picked.append(case)
     found = [matrix.run_case(c, 30.0, tmp_path)["found"] for c in picked]
     assert found == list(SUBSET), list(zip(picked, found, strict=True))
+
+
+def test_the_closed_loop_batch_plan_is_balanced_round_by_round_and_pairs_with_its_subsets() -> None:
+    """Every round holds each cause at each size once and its share of the nulls, so a batch cut
+    short is balanced; a --rounds/--causes subset draws the same cases (same seeds, plants,
+    effects) as the full plan, so runs with another excitation compare case by case."""
+    from tvsd.analysis import matrix_closed as MC
+
+    sizes = (3.0, 10.0)
+    full = MC.plan(n_null=6, reps=3, sizes=sizes, seed=0)
+    per_round = MC.round_length(6, 3, sizes)
+    assert len(full) == 3 * per_round
+    causes = {c.cause for c in full} - {"none"}
+    for r in range(3):
+        rnd = full[r * per_round : (r + 1) * per_round]
+        assert sorted((c.cause, c.size) for c in rnd if c.cause != "none") == sorted(
+            (c, m) for c in causes for m in sizes
+        )
+        assert sum(c.cause == "none" for c in rnd) == 2
+    again = MC.plan(n_null=6, reps=3, sizes=sizes, seed=0)
+    assert again == full and MC.plan(n_null=6, reps=3, sizes=sizes, seed=1) != full
+    assert all(c.profile == "identify" and 1.5 <= c.rps <= matrix.CLOSED_RPS for c in full)
+
+
+def test_the_identify_profile_with_a_reversal_turns_the_shaft_backwards_and_back(tmp_path: Path) -> None:
+    """With `reversal` in identify.kinds the closed loop follows the reference through zero to
+    −reversal_rps and back to the setpoint (the ramp at scan_accel_rps2: 1.2 s each way for
+    10 + 2 rev/s at 10 rev/s²); the command opposes the motion while it brakes (what makes a dead
+    zone differ from Coulomb friction) and the speed spends the hold at the negative level
+    (seed 4: 2.15 s below −1 rev/s, minimum −2.09)."""
+    cfg = load_config()
+    ident = dataclasses.replace(cfg.identify, kinds=("steps", "multisine", "prbs", "reversal"))
+    cfg = dataclasses.replace(cfg, identify=ident)
+    path = tmp_path / "rev.csv"
+    record(cfg, path, "identify", 12.0, (), seed=4, rps=10.0)
+    rec = read(path)
+    rps = rec.omega / (2 * math.pi)
+    back = rps < -0.5 * ident.reversal_rps  # the steps (±step_rps) go on during the hold
+    assert np.count_nonzero(back) * 1e-3 > 0.8 * ident.reversal_hold_s
+    assert np.min(rps) > -ident.reversal_rps - ident.step_rps - ident.multisine_rps - 0.5
+    assert abs(np.mean(rps[-500:]) - 10.0) < 1.0  # back at the setpoint by the end
+    assert np.count_nonzero((rec.u < 0) & (rec.omega > 0)) > 200  # braking: u against ω
+    assert np.count_nonzero((rec.u > 0) & (rec.omega < 0)) > 100

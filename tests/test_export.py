@@ -106,3 +106,41 @@ def test_the_reference_the_unit_and_the_fault_marks_are_exported(tmp_path, monke
     assert csv.meta["faults"] == "1"
     assert csv.meta["fault_1"] == "t=0.250 s, mcu_stale: MCU state frames stopped: none for 40 ms"
     assert csv.meta["faults_not_placed"] == "1"  # the mark without loop time
+
+
+def test_the_identify_excitation_is_exported_as_u_exc_averaged_per_sample(tmp_path, monkeypatch, capsys):
+    """The `excitation` channel (identify's table, rows 1 ms long on the loop's clock) becomes u_exc:
+    the exact mean of the played step function over each 1 ms bin (bins end at their t). Rows start
+    half a bin off the grid, so each bin holds half of two rows; after an aborted run's end mark the
+    rows were never played: 0 there, as before the run."""
+    k = np.arange(0, 300)
+    with Recorder(tmp_path / "rec", CONFIG) as rec:
+        rec.channel("loop", list(LOOP_FIELDS)).append(_rows(k))
+        rec.channel("reference", list(REFERENCE_FIELDS)).append(_reference(k))
+        j = np.arange(100)
+        v = np.where(np.random.default_rng(3).random(100) < 0.5, -0.5, 0.5)
+        exc = rec.channel("excitation", [("t", "<f8"), ("d_rps", "<f8"), ("d_volts", "<f8")])
+        exc.append({"t": T0 + 0.1005 + j / 1000, "d_rps": np.zeros(100), "d_volts": v})
+        rec.mark("identify_start", t_loop=T0 + 0.1, t0=T0 + 0.1005)
+        rec.mark("identify_end", t_loop=T0 + 0.150, outcome="aborted", reason="a fault")
+    status, _, err = _export(monkeypatch, capsys, tmp_path / "rec", tmp_path / "o.csv")
+    assert status == 0, err
+    csv = read_csv(tmp_path / "o.csv")
+    header = (tmp_path / "o.csv").read_text().splitlines()
+    columns = next(line for line in header if not line.startswith("#")).split(",")
+    assert columns[:10] == ["t", "u", "omega", "phi", "omega_ref", "phi_ref", "u_ff", "u_exc", "gap", "fault"]
+    played = v[:50]  # rows from 0.1505 s on come after the abort mark (0.150 s)
+    want = np.zeros(len(k))
+    # bin k is (k − 1 … k) ms after T0; row j (0.1005 + j/1000 s on) is half in bin 101 + j, half
+    # in bin 102 + j
+    want[101] = 0.5 * played[0]
+    want[102:151] = 0.5 * (played[:-1] + played[1:])
+    want[151] = 0.5 * played[-1]
+    np.testing.assert_allclose(csv.extra["u_exc"], want, atol=1e-9)
+
+
+def test_a_recording_without_identify_has_no_u_exc(tmp_path, monkeypatch, capsys):
+    _record(tmp_path / "rec", [np.arange(0, 100)])
+    status, _, err = _export(monkeypatch, capsys, tmp_path / "rec", tmp_path / "o.csv")
+    assert status == 0, err
+    assert "u_exc" not in read_csv(tmp_path / "o.csv").extra

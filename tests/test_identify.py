@@ -112,6 +112,29 @@ def test_the_table_is_bounded_and_holds_each_kind():
     assert not np.array_equal(build(IdentifySettings(seed=2)).d_volts, ex.d_volts)
 
 
+
+def test_a_reversal_is_asked_for_bounded_centred_and_refused_when_it_does_not_fit():
+    """Not in the default kinds (it turns the aperture backwards). Asked for: one segment, centred,
+    where the offset takes the setpoint to −reversal_rps (the ramp down at scan_accel_rps2 plus the
+    hold; the ramp back follows inside the run); without a setpoint, or too long for the run, a
+    UsageError that says what to change."""
+    assert "reversal" not in IdentifySettings().kinds
+    s = IdentifySettings(kinds=("reversal",), seconds=20.0, reversal_rps=2.0, reversal_hold_s=2.0)
+    ex = build(s, -10.0, 10.0)  # the magnitude counts: the daemon signs the table
+    on = np.flatnonzero(ex.d_rps)
+    assert set(np.unique(ex.d_rps)) == {0.0, -12.0} and np.all(np.diff(on) == 1)
+    ramp = 12.0 / 10.0
+    assert len(on) * ex.period_s == pytest.approx(ramp + 2.0, abs=2e-3)
+    start = on[0] * ex.period_s
+    assert start == pytest.approx(0.5 * (20.0 - (2 * ramp + 2.0)), abs=2e-3)
+    assert not np.any(ex.d_volts)
+    with pytest.raises(UsageError, match="needs the speed setpoint"):
+        build(s)
+    with pytest.raises(UsageError, match=r"takes 14.8 s; the run is 10 s: give --seconds 16 or more"):
+        build(IdentifySettings(kinds=("reversal",), seconds=10.0, reversal_hold_s=10.0), 10.0, 5.0)
+    with pytest.raises(UsageError, match="reversal_rps: must be at most 10 rev/s"):
+        IdentifySettings(reversal_rps=11.0)
+
 # --- the control thread plays it ---------------------------------------------------------------------
 def test_the_loop_plays_the_table_at_its_own_tick_times(setup: Setup) -> None:
     """SIL runner scanning at 15 rev/s: a 0.4 s table of speed steps (±0.5 rev/s) and a ±1 V PRBS.

@@ -86,7 +86,9 @@ def gls(
     rss = float(r @ r)
     n, k = Xw.shape
     try:
-        cov = rss / max(n - k, 1) * np.linalg.inv(Xw.T @ Xw)
+        # pinv: a column that is all zero (the Stribeck term of a file that never runs slow) has no
+        # variance of its own and must not make every other coefficient's unknown
+        cov = rss / max(n - k, 1) * np.linalg.pinv(Xw.T @ Xw)
     except np.linalg.LinAlgError:
         cov = np.full((k, k), math.nan)
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))

@@ -99,7 +99,7 @@ def load(path: Path, cfg: Config) -> Dataset:
     else:  # N*m or N
         b_u, b_omega, lag = 1.0, 0.0, 0.0
     linear = unit == "N"
-    refs = {k: v for k, v in rec.extra.items() if k in ("omega_ref", "phi_ref")}
+    refs = {k: v for k, v in rec.extra.items() if k in ("omega_ref", "phi_ref", "u_exc")}
     return Dataset(
         name=path.name,
         t=rec.t,

@@ -172,8 +172,8 @@ def _diagnose(
     prep = prepare(data, band)
     design = D.build(prep, data.offset_term, rotary)
     measured = design
-    if iv and instrument.reference_moves(data):  # closed loop, reference excited: 2SLS (opt-in, README)
-        design, _ = instrument.instrumented(prep, data.offset_term, rotary)
+    if iv and instrument.excited(data):  # closed loop, excited: 2SLS (instrument.py)
+        design, _ = instrument.instrumented(prep, data.offset_term, rotary, measured=measured)
     design.back_emf = data.b_omega > 0 or data.u_unit == "V"
     note = _closed_loop_note(data)
     if note is not None:

@@ -20,14 +20,20 @@ acceleration stays measured; the rows are those after the spin-up. Each regresso
 function of the reference, which the noise does not move, so conditioning on the regressors
 (what the bootstrap does) is legitimate again, with no change to calibrate.py.
 
-Status: opt-in (`diagnose(..., iv=True)`, `matrix.run(..., iv=True)`), not the default. On the
-matrix's closed-loop family (scanning with `tvsctl identify`'s excitation) it gave more false
-alarms than least squares on the same nulls (README, "Closed loop"): what the reference does not
-explain — the law's answer to the noise, the PRBS added after the law, the loop's nonlinear
-response to a step that saturates the drive — stays in the second stage's error, structured
-enough for the scanned blocks (saturation, delay, drift) to fit it. A reference that does not
-move (steady scanning) instruments nothing: then the command-side causes are not testable
-(doctor.py drops them).
+With identify's PRBS recorded (`u_exc`, exogenous: drawn before the run, added after the law)
+the first stage predicts from it too, and the second stage's left side is cleaned of
+(X − X̂)·θ_IV (`instrumented(measured=...)`), so the bootstrap sees the structural residual.
+
+Status: opt-in (`diagnose(..., iv=True)`; `python -m tvsd.analysis.matrix_closed --variants
+ls,iv`), not the default, because it did not measure better. On 104 cases of the closed-loop
+family (docs/measurements/closed-loop-ls-iv.w*.jsonl, the same files through both): 3 false
+alarms in 10 nulls for both, 52 of 94 effect cases named against least squares' 49 — better on
+delay and dead zone at 3×, no better elsewhere, and ≈ 30 % slower. With the reversal segment
+it did worse than least squares (6 of 12 nulls alarmed; README, "Closed loop"). The PRBS lifts
+the first stage's share of the command's band-limited variance (0.87 → 0.96 on a 30 s case);
+what is left — the law's answer to the noise — is low-pass and, through the scanned nonlinear
+blocks of û, still fits. A file without a moving reference or a u_exc column instruments
+nothing: then the command-side causes are not testable (doctor.py drops them).
 """
 
 from __future__ import annotations
@@ -48,6 +54,7 @@ CATCH_UP = 5.0
 SETTLE_S = 0.5
 WIENER_S = 4.0  # Welch segment: 0.25 Hz resolution of the loop's response to the reference
 MOVING_SHARE = 0.005  # the reference must vary by this share of its level (steady scanning: ~0)
+EXCITATION = "u_exc"  # the recording's column of the voltage identify added after the law
 
 
 def reference_moves(data: Dataset) -> bool:
@@ -59,6 +66,14 @@ def reference_moves(data: Dataset) -> bool:
     steady = ref[len(ref) // 5 :]
     level = float(np.mean(np.abs(steady)))
     return level > 0 and float(np.std(steady)) > MOVING_SHARE * level
+
+
+def excited(data: Dataset) -> bool:
+    """Whether the file carries an exogenous excitation to instrument with: a moving reference, or
+    identify's voltage excitation (u_exc) that is not all zero."""
+    exc = data.refs.get(EXCITATION)
+    moving_exc = exc is not None and "omega_ref" in data.refs and float(np.std(exc)) > 0
+    return reference_moves(data) or moving_exc
 
 
 def bank(data: Dataset) -> np.ndarray:
@@ -93,20 +108,31 @@ def steady_start(data: Dataset) -> int:
     return min(len(ref) - 1, max(first + win, after))
 
 
-def first_stage(prep: Prepared) -> FirstStage:
+def first_stage(prep: Prepared, use_exc: bool = True) -> FirstStage:
     """û and ω̂: the reference through the closed loop's own linear response, estimated over the
     file (Wiener filter H = S_rv / S_rr, Welch-averaged; any function of the reference, past or
     future, is a valid instrument). Constant lags would leave part of the loop's response to the
-    reference in u − û, and a scanned block of û (a delay) would then fit that, not the noise."""
+    reference in u − û, and a scanned block of û (a delay) would then fit that, not the noise.
+
+    With the identify run's voltage excitation recorded (`u_exc`, the PRBS added after the law)
+    and `use_exc`, what the reference leaves is then predicted from it the same way: the PRBS is
+    independent of the noise (drawn before the run), and it carries the command's broadband part
+    that the reference, a few Hz wide, cannot."""
     data = prep.data
     ref = bank(data)
     u_f = prep.lowpass(data.u)
     rate = data.sample_rate_hz
     s0 = steady_start(data)
     edge = slice(max(prep.trim, s0), len(u_f) - prep.trim)
+    u_lin = _wiener(ref, data.u, rate, s0)
+    w_lin = _wiener(ref, prep.speed, rate, s0)
+    exc = data.refs.get(EXCITATION) if use_exc else None
+    if exc is not None and float(np.std(exc[s0:])) > 0:
+        u_lin = u_lin + _wiener(exc, data.u - u_lin, rate, s0)
+        w_lin = w_lin + _wiener(exc, prep.speed - w_lin, rate, s0)
     # The law saturates at the drive's limits on a reference step: the prediction does too.
-    u_hat = np.clip(_wiener(ref, data.u, rate, s0), float(np.min(data.u)), float(np.max(data.u)))
-    w_hat = prep.lowpass(_wiener(ref, prep.speed, rate, s0))
+    u_hat = np.clip(u_lin, float(np.min(data.u)), float(np.max(data.u)))
+    w_hat = prep.lowpass(w_lin)
     r2_u = _r2(u_f[edge], prep.lowpass(u_hat)[edge])
     return FirstStage(u_hat, w_hat, r2_u, _r2(prep.speed[edge], w_hat[edge]))
 
@@ -144,14 +170,28 @@ def _r2(x: np.ndarray, fit: np.ndarray) -> float:
     return 1.0 - float(np.var(x - fit)) / v if v > 0 else 0.0
 
 
-def instrumented(prep: Prepared, offset: bool, rotary: bool) -> tuple[D.Design, FirstStage]:
+def instrumented(
+    prep: Prepared, offset: bool, rotary: bool, use_exc: bool = True, measured: D.Design | None = None
+) -> tuple[D.Design, FirstStage]:
     """The design with every command and speed regressor built from the reference's prediction
-    (the acceleration, the angle and time as measured)."""
-    fs = first_stage(prep)
+    (the acceleration, the angle and time as measured).
+
+    With the `measured` design (same rows), the left side becomes y − (X − X̂)·θ_IV: the
+    regression on X̂ then has the 2SLS coefficients and, as its residual, the structural one
+    y − X·θ_IV — the equation's own error, which the instruments do not move. Without it the
+    second stage's residual also holds (X − X̂)·θ, the law's answer to the noise (a low-pass,
+    correlated with the noise), which the bootstrap's i.i.d. whitened errors do not describe and
+    the scanned command blocks (built from û) fit."""
+    fs = first_stage(prep, use_exc)
     data = dataclasses.replace(prep.data, u=fs.u_hat)
     prep_iv = dataclasses.replace(prep, data=data, speed=fs.speed_hat)
     t0 = float(prep.data.t[steady_start(prep.data)])
-    return D.build(prep_iv, offset, rotary, fit_mask=prep.t_rows >= t0), fs
+    design = D.build(prep_iv, offset, rotary, fit_mask=prep.t_rows >= t0)
+    if measured is not None and measured.X.shape == design.X.shape:
+        m = design.rows_mask
+        theta, *_ = np.linalg.lstsq(design.X[m], design.y[m], rcond=None)
+        design.y = design.y - (measured.X - design.X) @ theta
+    return design, fs
 
 
 def residual(measured: D.Design, used: D.Design, verdict: Any) -> np.ndarray:

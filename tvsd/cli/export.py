@@ -4,7 +4,9 @@ Reading and writing are apart: `tvsd.recording.table.loop_table` makes the unifo
 filled and flagged, the controller's reference joined, fault marks placed), and a writer of
 `WRITERS` puts it in a file — another format is one more writer.
 
-Columns: t, u, omega, phi, then omega_ref, phi_ref, u_ff (the daemon's reference), gap (1: a
+Columns: t, u, omega, phi, then omega_ref, phi_ref, u_ff (the daemon's reference), u_exc (the
+voltage `tvsctl identify` added after the law, from the recording's `excitation` channel: the
+doctor's instrument; 0 outside the run; only when the recording holds one), gap (1: a
 sample the recording lacked, filled by linear interpolation), fault (faults marked in that sample),
 and any other numeric field of the channel. Metadata lines: the source, ``u_unit: V`` (the daemon
 commands volts), the gaps (how many, the missing samples, the first ones listed), the faults (one
@@ -19,6 +21,7 @@ import argparse
 import math
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -34,6 +37,8 @@ FORMATS = ("csv", "parquet", "mcap")
 SIGNIFICANT_DIGITS = 9  # tvsd.recording.csvfile.write keeps %.9g
 LISTED_GAPS = 50  # gaps listed one by one in the metadata; more are only counted
 U_UNIT = "V"  # the daemon's command is the drive voltage (docs/architecture.md, u_unit)
+EXCITATION_CHANNEL = "excitation"  # what identify played (tvsd/daemon/session_recording.py)
+U_EXC = "u_exc"  # its voltage, per sample: the doctor's instrument in closed loop
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -79,6 +84,10 @@ def _run(args: argparse.Namespace) -> int:
 
         return export_mcap(rec, args.rec, out)
     table = loop_table(rec, args.channel, args.start, args.end, strict=args.strict)
+    if args.channel == LOOP_CHANNEL and EXCITATION_CHANNEL in rec.channels:
+        t_first = float(rec.channels[args.channel]["t"][0]) + float(table.meta["start_s"])  # type: ignore[arg-type]
+        rows = played(rec.channels[EXCITATION_CHANNEL], rec.marks)
+        table.columns[U_EXC] = excitation_column(rows, t_first, table)
     span = float(table.t[-1])
     span_ok = 10.0 ** (math.ceil(math.log10(max(span, 1e-300))) - SIGNIFICANT_DIGITS) <= 0.005 / table.rate_hz
     if not span_ok:
@@ -131,10 +140,44 @@ def _fault_meta(table: Table) -> dict[str, object]:
 def write_csv(path: Path, table: Table, meta: dict[str, object]) -> None:
     cols = dict(table.columns)
     u, omega, phi = cols.pop("u"), cols.pop("omega"), cols.pop("phi", None)
-    order = ("omega_ref", "phi_ref", "u_ff", "gap", "fault")
+    order = ("omega_ref", "phi_ref", "u_ff", U_EXC, "gap", "fault")
     extra = {name: cols.pop(name) for name in order if name in cols}
     extra.update(cols)
     write(path, table.t, u, omega, phi, table.rate_hz, meta, {k: np.asarray(v) for k, v in extra.items()})
+
+
+def played(rows: np.ndarray, marks: list[dict[str, Any]]) -> np.ndarray:
+    """The excitation rows the control thread played: identify writes its whole table at the
+    start, so the rows of an aborted run after its `identify_end` mark (up to the next run's
+    start) were never played."""
+    starts = sorted(float(m["t0"]) for m in marks if m.get("event") == "identify_start" and "t0" in m)
+    keep = np.ones(len(rows), dtype=bool)
+    for m in marks:
+        t_end = m.get("t_loop")
+        if m.get("event") != "identify_end" or m.get("outcome") != "aborted" or t_end is None:
+            continue
+        nxt = next((t for t in starts if t > float(t_end)), math.inf)
+        keep &= ~((rows["t"] >= float(t_end)) & (rows["t"] < nxt))
+    return rows[keep]
+
+
+def excitation_column(rows: np.ndarray, t_first: float, table: Table) -> np.ndarray:
+    """identify's voltage excitation averaged over each loop sample (the loop's bins end at their
+    t and last one period, as u is averaged): the exact mean of the played step function (each
+    row held `period` from its t, nothing outside the rows), 0 where identify did not play."""
+    period = 1.0 / table.rate_hz
+    edges = t_first - period + np.arange(len(table.t) + 1) * period
+    if len(rows) == 0:
+        return np.zeros(len(table.t))
+    order = np.argsort(rows["t"], kind="stable")
+    t, v = rows["t"][order].astype(float), rows["d_volts"][order].astype(float)
+    held = np.median(np.diff(t)) if len(t) > 1 else period
+    end = np.minimum(t + held, np.append(t[1:], np.inf))  # a row lasts until the next one, at most `held`
+    area = np.cumsum(v * (end - t))
+    knots = np.column_stack([t, end]).ravel()
+    integral = np.column_stack([np.concatenate([[0.0], area[:-1]]), area]).ravel()
+    cum = np.interp(edges, knots, integral, left=0.0, right=float(area[-1]))
+    return np.diff(cum) / period
 
 
 def write_parquet(path: Path, table: Table, meta: dict[str, object]) -> None:

@@ -7,7 +7,8 @@ from dataclasses import dataclass
 
 from tvsd.schema import FieldError, check, option
 
-EXCITATION_KINDS = ("steps", "multisine", "prbs")
+EXCITATION_KINDS = ("steps", "multisine", "prbs", "reversal")
+DEFAULT_KINDS = ("steps", "multisine", "prbs")  # reversal: asked for (it turns the aperture backwards)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -19,8 +20,8 @@ class IdentifySettings:
     clipped at ±drive.u_max_v."""
 
     kinds: tuple[str, ...] = option(
-        list(EXCITATION_KINDS),
-        doc="excitations to add, any of steps, multisine, prbs",
+        list(DEFAULT_KINDS),
+        doc="excitations to add, any of steps, multisine, prbs, reversal",
         choices=EXCITATION_KINDS,
     )
     seconds: float = option(20.0, doc="how long the excitation runs", unit="s", ge=1)
@@ -52,6 +53,12 @@ class IdentifySettings:
         gt=0,
     )  # fmt: skip
     seed: int = option(1, doc="random seed of the step order, multisine phases and PRBS", ge=0)
+    reversal_rps: float = option(
+        2.0, doc="reversal: the speed reached in the other direction", unit="rev/s", gt=0, le=10
+    )
+    reversal_hold_s: float = option(
+        2.0, doc="reversal: how long that speed is held (after the ramp to it)", unit="s", ge=0.1, le=30
+    )
 
     def __post_init__(self) -> None:
         check(self)

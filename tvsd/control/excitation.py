@@ -10,8 +10,14 @@ Three kinds (config `identify:`), summed:
 - `prbs`: a maximal-length pseudo-random binary sequence, ±prbs_v added to the drive voltage after
   the law, one bit per prbs_clock_s. In closed loop the law answers it; what the doctor needs is
   that the applied voltage carries power the disturbance does not (the recording keeps that voltage).
-The speed excitation stays within ±max_delta_rps (checked when the config is loaded); a row is
-1/table_rate_hz long and the 10 kHz loop holds it.
+- `reversal` (asked for; not in the default kinds): once, in the middle of the run, the speed
+  reference goes through zero to reversal_rps the other way, holds reversal_hold_s, and comes
+  back, through the scanning ramp (control.scan_accel_rps2). It gives what one direction of
+  rotation cannot: friction in both directions (friction asymmetry) and the command passing
+  through zero, against the motion while the ramp brakes (a dead zone, which otherwise is an
+  offset that Coulomb friction absorbs). Its table rows need the setpoint and the ramp rate.
+The speed excitation stays within ±max_delta_rps (checked when the config is loaded), the reversal
+within reversal_rps the other way; a row is 1/table_rate_hz long and the 10 kHz loop holds it.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tvsd.config import IdentifySettings
+from tvsd.errors import UsageError
 
 MAX_LINES = 24
 PRBS_BITS = 15  # x^15 + x^14 + 1: a period of 32767 bits (131 s at 4 ms)
@@ -57,8 +64,9 @@ class Excitation:
         }
 
 
-def build(s: IdentifySettings) -> Excitation:
-    """The table of `s` (its kinds, duration, amplitudes, seed)."""
+def build(s: IdentifySettings, setpoint_rps: float = 0.0, accel_rps2: float = 0.0) -> Excitation:
+    """The table of `s` (its kinds, duration, amplitudes, seed); a reversal needs the speed
+    setpoint (its magnitude: the daemon signs the table) and the scanning ramp's rate."""
     n = round(s.seconds * s.table_rate_hz)
     t = np.arange(n) / s.table_rate_hz
     rng = np.random.default_rng(s.seed)
@@ -70,7 +78,28 @@ def build(s: IdentifySettings) -> Excitation:
         d_rps += multisine(t, s.multisine_min_hz, s.multisine_max_hz, s.multisine_rps)
     if "prbs" in s.kinds and s.prbs_v > 0:
         d_volts += s.prbs_v * prbs(n, max(1, round(s.prbs_clock_s * s.table_rate_hz)), rng)
+    if "reversal" in s.kinds:
+        d_rps += reversal(t, s, abs(setpoint_rps), accel_rps2)
     return Excitation(1.0 / s.table_rate_hz, d_rps, d_volts, tuple(s.kinds), s.seed)
+
+
+def reversal(t: np.ndarray, s: IdentifySettings, setpoint_rps: float, accel_rps2: float) -> np.ndarray:
+    """The offset that takes the reference from `setpoint_rps` to −reversal_rps for the ramp down
+    and reversal_hold_s, centred in the run (the ramp back follows)."""
+    if setpoint_rps <= 0 or accel_rps2 <= 0:
+        raise UsageError("identify: a reversal needs the speed setpoint and control.scan_accel_rps2")
+    swing = setpoint_rps + s.reversal_rps
+    ramp = swing / accel_rps2
+    span = 2 * ramp + s.reversal_hold_s
+    seconds = len(t) / s.table_rate_hz
+    if span > seconds:
+        raise UsageError(
+            f"identify: the reversal ({swing:g} rev/s at {accel_rps2:g} rev/s² both ways, held "
+            f"{s.reversal_hold_s:g} s) takes {span:.3g} s; the run is {seconds:g} s: give --seconds "
+            f"{math.ceil(span + 1)} or more"
+        )
+    start = 0.5 * (seconds - span)
+    return np.where((t >= start) & (t < start + ramp + s.reversal_hold_s), -swing, 0.0)
 
 
 def steps(n: int, hold: int, size: float, rng: np.random.Generator) -> np.ndarray:

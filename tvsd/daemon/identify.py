@@ -64,7 +64,10 @@ class IdentifyRun:
     def __init__(self, d: Daemon, settings: IdentifySettings) -> None:
         self.d = d
         self.settings = settings
-        self.excitation: Excitation = build(settings)
+        try:
+            self.excitation: Excitation = build(settings, d.target_rps, d.cfg.control.scan_accel_rps2)
+        except UsageError as exc:  # a reversal that does not fit the run, or no speed to reverse
+            raise RpcError(STATE_ERROR if d.target_rps == 0 else INVALID_PARAMS, str(exc)) from None
         self.state = "running"
         self.reason = ""
         self.own_recording = False

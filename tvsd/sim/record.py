@@ -10,7 +10,8 @@ Profiles:
   reference goes into the file as ``omega_ref``, ``phi_ref`` (as the daemon's export does);
 - ``identify``: ``spin``, then from 1 s after the ramp `tvsctl identify`'s excitation (config
   ``identify:``, its seed the record's: speed-reference steps and multisine, PRBS on the voltage)
-  until the end, as the daemon plays it (tvsd.control.excitation).
+  until the end, as the daemon plays it (tvsd.control.excitation); the column ``u_exc`` holds the
+  voltage it added after the law (the PRBS), as the daemon's export does.
 What ``u`` is follows ``u_unit`` (DESIGN.md): ``V`` the drive voltage; ``A`` the motor current
 (as a current-controlled drive reports it); ``N*m`` the torque kM·i; ``duty`` the voltage over the
 drive limit, with ``u_scale`` = that limit.
@@ -88,7 +89,7 @@ def identify_table(
             f"(ramp to {rps:g} rev/s, then at least 1 s of excitation)"
         )
     ident = dataclasses.replace(cfg.identify, seconds=length, max_seconds=max(length, 1.0), seed=seed)
-    ex = excitation.build(ident)
+    ex = excitation.build(ident, rps, cfg.control.scan_accel_rps2)
     n = round(seconds / setup.dt)
     k0 = round(start / setup.dt)
     table = np.zeros((n, 2))
@@ -171,6 +172,10 @@ def record(
         trace = runs.spin_excited(setup, rps, seconds, exc, decim)
         meta = {"profile": "identify", "rps_setpoint": rps, "excitation_start_s": start}
         extra = {"omega_ref": np.gradient(trace.phi_ref, trace.t), "phi_ref": trace.phi_ref}
+        # The voltage the excitation added after the law, averaged per sample as u is: exogenous,
+        # so the doctor's instrument (tvsd.analysis.instrument), as `tvsctl export` writes it.
+        n_rec = len(trace.t)
+        extra["u_exc"] = exc[: n_rec * decim, 1].reshape(n_rec, decim).mean(axis=1)
     cols = measure(trace, m, rng)
     meta["u_unit"] = u_unit
     if u_unit == "A":

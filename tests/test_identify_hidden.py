@@ -1,0 +1,94 @@
+"""The README's identify → export → analyze loop on a SIL daemon whose plant hides an effect: the
+doctor must name it from the daemon's own recording, through the command line as a user runs it.
+
+The hidden effect is an imbalance of 2e-4 N·m at 25 rev/s (the SIL profile's `effects:`, which the
+daemon's recording does not carry): ≈ 6× the matrix's base size for the config's plant (0.5·J),
+where the closed-loop matrix names imbalance in every case from 3× (README, "Closed loop"); offline
+the same excitation named it on 2 of 2 seeds, with `none` on the two null runs. The daemon runs
+with the fail-safe times widened (conftest.RELAXED_FAILSAFE), as every SIL daemon test does, the
+MCU handshake and identify's speed check widened too, and --realtime: this test is about the
+doctor's answer on a clean recording, not the fail-safe's timing (test_identify_daemon.py and
+test_daemon.py test those). A recording that shows the daemon stalled is skipped, with the reason.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from conftest import RELAXED_FAILSAFE, daemon_config
+from test_daemon import _daemon, spin_to, tvsctl, wait_status
+
+from tvsd.recording.csvfile import read
+
+HIDDEN = "imbalance:amplitude=2e-4,phase=0.5"
+RPS = 25.0
+ROOT = Path(__file__).resolve().parents[1]
+MAX_GAPS = 50  # filled 1 ms stretches: the README's run 0; --realtime runs at load 20: 9-22
+ATTEMPTS = 3  # identify runs aborted because the speed strayed (a stalled daemon), then given up
+
+
+@pytest.fixture
+def hidden_daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path, Path]]:
+    sil = (ROOT / "config" / "sil.yaml").read_text()
+    assert "\neffects: []" in sil, "config/sil.yaml's effects line changed: update the test"
+    (tmp_path / "sil.yaml").write_text(sil.replace("\neffects: []", f'\neffects: ["{HIDDEN}"]'))
+    changes = {
+        **RELAXED_FAILSAFE,
+        # the SIL devices' process answers the MCU handshake late on a loaded machine (the daemon
+        # then stops at start-up: "stopping" before the first command)
+        "  identify_timeout_ms: 500 ": "  identify_timeout_ms: 10000 ",
+        # a stall of this non-realtime daemon lets the speed stray past 3 rev/s (4.85 seen at load
+        # 20), which aborts the run (its safety check, tested in test_identify_daemon.py)
+        "  abort_error_rps: 3.0 ": "  abort_error_rps: 10.0 ",
+        "sil_profile: sil.yaml": f"sil_profile: {tmp_path / 'sil.yaml'}",
+    }
+    # --realtime, as `make run` and the scanner run it: at normal priority on a loaded machine the
+    # daemon stalls, and a recording with stalls (filled gaps, speed excursions) is not what the
+    # doctor is judged on here. (On this shared machine: under `flock /work/wt/soak.lock`.)
+    yield from _daemon(tmp_path, daemon_config(tmp_path, changes), realtime=True)
+
+
+@pytest.mark.slow
+def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_path):
+    _, sock, _ = hidden_daemon
+    spin_to(sock, RPS, timeout=60)
+    run: dict = {}
+    for _ in range(ATTEMPTS):
+        proc = tvsctl(sock, "identify", "--seconds", "20", "--json", "--timeout", "180", check=False)
+        run = json.loads(proc.stdout) if proc.stdout.strip() else {"refused": proc.stderr}
+        if run.get("outcome") == "done":
+            break
+        # a refusal while the speed is off its setpoint, or a run aborted because it strayed (a
+        # stall of this non-realtime daemon on a loaded machine): the safety checks did their job;
+        # back at the setpoint, the run again. Anything else fails below.
+        if not ("settles" in str(run.get("refused")) or "strayed" in str(run.get("reason"))):
+            break
+        wait_status(sock, lambda s: abs(s["rps"] - RPS) < 0.5, 60, f"{RPS} rev/s again", fault_ends=True)
+    assert run.get("outcome") == "done", run
+    out = tmp_path / "identify.csv"
+    cli = [sys.executable, "-m", "tvsd.cli.main"]
+    exp = subprocess.run(
+        [*cli, "export", run["recording"], "--csv", str(out)], capture_output=True, text=True, timeout=120
+    )
+    assert exp.returncode == 0, exp.stderr
+    meta = read(out).meta
+    if int(meta["gaps"]) > MAX_GAPS or int(meta["faults"]) > 0:
+        pytest.skip(
+            f"the daemon stalled during the run ({meta['gaps']} gaps, {meta['faults']} faults in its "
+            "recording): not the recording this test judges the doctor on; run it without CPU hogs"
+        )
+    header = next(line for line in out.read_text().splitlines() if not line.startswith("#"))
+    assert {"omega_ref", "phi_ref", "u_exc"} <= set(header.split(","))
+    ana = subprocess.run(
+        [*cli, "analyze", str(out), "--json", "--quiet"], capture_output=True, text=True, timeout=300
+    )
+    assert ana.returncode == 0, ana.stderr
+    verdict = json.loads(ana.stdout)
+    assert verdict["cause"] == "imbalance", {k: verdict[k] for k in ("cause", "effect", "candidates")}
+    # the amplitude within a factor 2 of the hidden one
+    assert 1e-4 < verdict["effect"]["amplitude"] < 4e-4, verdict["effect"]

@@ -1,0 +1,177 @@
+"""The closed-loop family of the matrix (tvsd.analysis.matrix), run per cause at chosen sizes and
+analysed by several variants of the doctor on the same files, resumably, into a JSON-lines file.
+
+Why a module of its own: a closed-loop case costs a 30 s closed-loop simulation and ≈ 4 s of
+analysis per variant on an idle core; on a shared machine a batch of 300 runs for an hour or more,
+so each case's outcome is appended as it comes (a batch stopped half way keeps what it did, a
+restart skips it), and the cases are ordered round by round (every cause and size once, then the
+next repetition) so a partial batch is balanced.
+
+Variants: `ls` (least squares, the doctor's default), `iv` (two-stage least squares with the
+reference and, when recorded, identify's voltage excitation `u_exc` as instruments),
+`iv_ref` (the reference alone, as before u_exc was recorded).
+
+    python -m tvsd.analysis.matrix_closed OUT.jsonl [--reps 15] [--nulls 30] [--sizes 3,10]
+        [--seed 0] [--worker 0 --workers 1] [--variants ls,iv] [--reversal]
+    python -m tvsd.analysis.matrix_closed 'OUT*.jsonl' --summary
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tvsd.analysis import matrix as M
+from tvsd.causes import Effect, parse_effect
+from tvsd.config import Config, load_config
+
+VARIANTS = ("ls", "iv", "iv_ref")
+
+
+def plan(n_null: int, reps: int, sizes: tuple[float, ...], seed: int) -> list[M.Case]:
+    """Round by round: in each of `reps` rounds every cause at every size once, and its share of
+    the nulls; each case draws its plant, σv (cycling), scanning speed and effect from its index."""
+    cfg = load_config()
+    names = tuple(M._effects(cfg.plant, cfg.drive.u_max_v, np.random.default_rng(0)))
+    order: list[tuple[str, float]] = []
+    per_round = -(-n_null // max(reps, 1))
+    nulls_left = n_null
+    for _ in range(reps):
+        order += [(c, m) for c in names for m in sizes]
+        k = min(per_round, nulls_left)
+        order += [("none", 0.0)] * k
+        nulls_left -= k
+    order += [("none", 0.0)] * nulls_left
+    out = []
+    for k, (cause, m) in enumerate(order):
+        g = np.random.default_rng([seed, 7, k])
+        plant = M._plant(cfg, g)
+        sigma = M.SIGMAS[k % 3]
+        text, torque = None, math.nan
+        if cause != "none":
+            text, torque = M._effects(plant, cfg.drive.u_max_v, g)[cause](m)
+        units = torque / (plant.J * sigma) if math.isfinite(torque) else math.nan
+        p = {k2: getattr(plant, k2) for k2 in ("J", "kv", "R", "kM", "tau_c")}
+        rps = M.scan_rps(plant, cfg.drive.u_max_v)
+        out.append(M.Case(10_000 * seed + k, cause, m, units, text, "identify", sigma, p, rps))
+    return out
+
+
+def round_length(n_null: int, reps: int, sizes: tuple[float, ...]) -> int:
+    cfg = load_config()
+    names = M._effects(cfg.plant, cfg.drive.u_max_v, np.random.default_rng(0))
+    return len(names) * len(sizes) + -(-n_null // max(reps, 1))
+
+
+def case_config(case: M.Case, identify: dict[str, Any] | None = None) -> Config:
+    cfg = load_config()
+    plant = dataclasses.replace(cfg.plant, **case.plant)  # type: ignore[arg-type]
+    plant = dataclasses.replace(
+        plant, kb=plant.kM * cfg.plant.kb / cfg.plant.kM, L=cfg.plant.L * plant.R / cfg.plant.R
+    )
+    sil = cfg.sil_or_default
+    vib = dataclasses.replace(sil.vibration, sigma_v=case.sigma_v)
+    cfg = dataclasses.replace(cfg, plant=plant, sil=dataclasses.replace(sil, vibration=vib))
+    if identify:
+        given: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in identify.items()}
+        cfg = dataclasses.replace(cfg, identify=dataclasses.replace(cfg.identify, **given))
+    return cfg
+
+
+def analyse(path: Path, cfg: Config, variant: str) -> tuple[str, float]:
+    from tvsd.analysis.dataset import load
+    from tvsd.analysis.doctor import diagnose
+
+    t0 = time.perf_counter()
+    try:
+        data = load(path, cfg)
+        if variant == "iv_ref":
+            data = dataclasses.replace(data, refs={k: v for k, v in data.refs.items() if k != "u_exc"})
+        found = diagnose(data, cfg.plant.v0, iv=variant != "ls").cause
+    except Exception as exc:  # a bad case is a result too (reported, not hidden)
+        found = f"error: {type(exc).__name__}: {exc}"[:160]
+    return found, time.perf_counter() - t0
+
+
+def run(
+    out: Path,
+    cases: list[M.Case],
+    variants: tuple[str, ...],
+    seconds: float = 30.0,
+    identify: dict[str, Any] | None = None,
+) -> None:
+    from tvsd.sim.record import record
+
+    done = {json.loads(line)["seed"] for line in out.read_text().splitlines()} if out.exists() else set()
+    with tempfile.TemporaryDirectory() as tmp:
+        for case in cases:
+            if case.seed in done:
+                continue
+            cfg = case_config(case, identify)
+            effects: tuple[Effect, ...] = (parse_effect(case.effect),) if case.effect else ()
+            path = Path(tmp) / f"case{case.seed}.csv"
+            t0 = time.perf_counter()
+            record(cfg, path, "identify", seconds, effects, case.seed, rps=case.rps)
+            row: dict[str, Any] = {**dataclasses.asdict(case), "record_s": time.perf_counter() - t0}
+            for v in variants:
+                row[v], row[f"{v}_s"] = analyse(path, cfg, v)
+            with out.open("a") as f:
+                f.write(json.dumps(row) + "\n")
+            path.unlink()
+
+
+def summary(rows: list[dict[str, Any]], variant: str) -> dict[str, Any]:
+    """The matrix's figures (tvsd.analysis.matrix.summarise) for one variant's answers."""
+    results = []
+    for r in rows:
+        if variant not in r:
+            continue
+        case = M.Case(**{f.name: r[f.name] for f in dataclasses.fields(M.Case)})
+        results.append({"case": case, "found": r[variant], "seconds": r[f"{variant}_s"]})
+    return M.summarise(results, f"closed_{variant}", math.nan)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--reps", type=int, default=15)
+    ap.add_argument("--nulls", type=int, default=30)
+    ap.add_argument("--sizes", default="3,10")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--worker", type=int, default=0)
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--variants", default="ls,iv")
+    ap.add_argument("--causes", default="", help="only these causes (and the nulls)")
+    rounds_help = "only the plan's first N rounds (paired with a full run)"
+    ap.add_argument("--rounds", type=int, default=0, help=rounds_help)
+    ap.add_argument("--identify", default="", help="identify: overrides as JSON")
+    ap.add_argument("--summary", action="store_true")
+    a = ap.parse_args()
+    if a.summary:  # OUT may be a glob (the workers' files together)
+        files = sorted(Path().glob(str(a.out))) if any(ch in str(a.out) for ch in "*?[") else [a.out]
+        rows = [json.loads(line) for f in files for line in f.read_text().splitlines()]
+        variants = [v for v in VARIANTS if any(v in r for r in rows)]
+        print(json.dumps({v: summary(rows, v) for v in variants}, indent=1, default=str))
+        return
+    sizes = tuple(float(x) for x in a.sizes.split(","))
+    cases = plan(a.nulls, a.reps, sizes, a.seed)
+    if a.rounds:
+        cases = cases[: a.rounds * round_length(a.nulls, a.reps, sizes)]
+    if a.causes:
+        keep = set(a.causes.split(",")) | {"none"}
+        cases = [c for c in cases if c.cause in keep]
+    mine = [c for k, c in enumerate(cases) if k % a.workers == a.worker]
+    ident = json.loads(a.identify) if a.identify else None
+    run(a.out, mine, tuple(a.variants.split(",")), identify=ident)
+
+
+if __name__ == "__main__":
+    main()
