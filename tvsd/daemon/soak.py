@@ -287,6 +287,10 @@ def _figures(
         "soak_fault_counts": counts,
         "soak_watchdog_expiries": watchdog,
         "soak_watchdog_expiries_firmware": fw_watchdog,  # None: the daemon's status had no stats yet
+        # Which side a watchdog expiry came from: the host's longest gap between two heartbeats
+        # (the control kernel writes them; since the daemon's start) against the firmware's limit
+        "soak_kernel_heartbeat_gap_max_ms": after["link"].get("kernel_heartbeat_gap_max_ms"),
+        "soak_link_events_dropped": after["link"].get("events_dropped"),
         "soak_mcu_frames_lost": after["link"].get("lost_frames", 0) - before["link"].get("lost_frames", 0),
         "soak_loop_ticks": la["ticks"] - lb["ticks"],
         "soak_loop_missed_ticks": la["missed_ticks"] - lb["missed_ticks"],
