@@ -192,7 +192,7 @@ def test_all(design: Design, seed: int = 0, boot: int = BOOTSTRAP, alpha: float 
     # the null each of the N_f ordinates 2|F|²/n of white noise is χ²₂, independently.
     fs_rows = 1.0 / float(np.median(np.diff(design.prep.t_rows)))
     f_hi = RES_BAND * min(design.prep.band.cutoff_hz, fs_rows / 2)
-    drss_res, f0, n_f = _periodogram_peak(e0, fs_rows, f_hi, keep)
+    drss_res, f0, n_f = _periodogram_peak(e0, fs_rows, f_hi)
     f_ref = _refine_frequency(design, f0, a, keep, Q0, e0)
     tested.append(Tested("resonance", None, float(_lr(n, rss0, drss_res)), 0.0, 1.0, frequency_hz=f_ref))
     u = rng.random(boot)
@@ -243,22 +243,12 @@ def _sign_ok(opt: Option, coef: np.ndarray) -> bool:
     return all(s == 0 or s * c > 0 for s, c in zip(opt.sign, coef, strict=False))
 
 
-def _periodogram_peak(
-    e: np.ndarray, fs: float, f_hi: float, keep: np.ndarray | None = None
-) -> tuple[float, float, int]:
+def _periodogram_peak(e: np.ndarray, fs: float, f_hi: float) -> tuple[float, float, int]:
     """Largest ΔRSS of a sinusoid at a Fourier frequency of the band (≈ 2|F|²/n), its frequency,
-    and how many frequencies were scanned.
-
-    The kept rows go back to their times (zeros where rows were dropped): transformed as one
-    contiguous series, a record with many stuck rows (a multisine's reversals) put a 26.05 Hz
-    line at 26.00 Hz, whose out-of-sample fit then failed (matrix seed 6, README)."""
+    and how many frequencies were scanned."""
     n = len(e)
-    if keep is not None and len(keep) > n:
-        full = np.zeros(len(keep))
-        full[keep] = e
-        e = full
     F = np.fft.rfft(e)
-    f = np.fft.rfftfreq(len(e), 1.0 / fs)
+    f = np.fft.rfftfreq(n, 1.0 / fs)
     band = (f >= RES_MIN_HZ) & (f <= f_hi)
     drss = 2.0 * np.abs(F[band]) ** 2 / n
     k = int(np.argmax(drss))
