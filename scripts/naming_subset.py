@@ -79,7 +79,7 @@ def _done(out: Path) -> set[tuple[int, str, float]]:
 
 
 def summary(paths: list[Path]) -> None:
-    rows = [json.loads(x) for p in paths for x in p.read_text().splitlines() if x.strip()]
+    rows = [json.loads(x) for p in paths if p.exists() for x in p.read_text().splitlines() if x.strip()]
     table: dict[str, dict[float, list[dict[str, object]]]] = defaultdict(lambda: defaultdict(list))
     for r in rows:
         table[r["cause"]][r["size"]].append(r)

@@ -92,3 +92,16 @@ def test_the_spectrum_names_a_mode_a_low_pass_and_nothing() -> None:
     assert mode.peak_hz == pytest.approx(30.0, abs=1.0) and mode.peak_q >= PEAK_Q
     assert spectral_cause(analyse(_residual("lowpass", 2), 250.0, 1.0, 100.0), 1e-3) == "colored_noise"
     assert spectral_cause(analyse(_residual("flat", 3), 250.0, 1.0, 100.0), 1e-3) is None
+
+
+def test_open_loop_delays_have_noise_units_from_their_command() -> None:
+    """A delay's size in noise units is b_u·rms(u(t) − u(t − τ))/(J·σv), from the known command:
+    larger for a longer delay of the same case draw (same plant, command and σv)."""
+    cfg = load_config()
+    case = matrix.cases(n_null=0, reps=1, seed=6, causes=("delay",))[0]
+    u = matrix.open_loop_command(cfg, case.profile, 30.0, case.seed)
+    b_u = case.plant["kM"] * cfg.plant.ku / case.plant["R"]
+    dt = 1.0 / cfg.control.rate_hz
+    expected = matrix.delay_torque(u, 0.0005, b_u, dt) / (case.plant["J"] * case.sigma_v)
+    assert case.noise_units == pytest.approx(expected, rel=1e-9)
+    assert matrix.delay_torque(u, 0.0015, b_u, dt) > matrix.delay_torque(u, 0.0005, b_u, dt) > 0

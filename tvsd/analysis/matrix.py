@@ -111,12 +111,26 @@ def coloured_sigma(sigma_v: float, tau_s: float) -> float:
     return sigma_v / math.sqrt(2.0 * tau_s)
 
 
+def delay_torque(command: np.ndarray | None, delay_s: float, b_u: float, dt: float) -> float:
+    """A delay's torque-equivalent size: the drive's torque error from applying the command late,
+    b_u·rms(u(t) − u(t − τ)) (nan where the command is not known before the run)."""
+    if command is None:
+        return math.nan
+    k = max(1, round(delay_s / dt))
+    return b_u * float(np.sqrt(np.mean((command[k:] - command[:-k]) ** 2)))
+
+
 # cause -> (effect text for size m, torque-equivalent size for J·σv units)
 def _effects(
-    plant: Any, u_max: float, g: np.random.Generator, command: np.ndarray | None = None
+    plant: Any,
+    u_max: float,
+    g: np.random.Generator,
+    command: np.ndarray | None = None,
+    dt: float = 1e-4,
 ) -> dict[str, Callable[[float], tuple[str, float]]]:
-    """`command`: the open-loop case's command (saturation is sized on it); None in closed loop,
-    where the thresholds stay relative to the drive limit."""
+    """`command`: the open-loop case's command on the plant's step `dt` (saturation is sized on
+    it, a delay's noise units measured on it); None in closed loop, where the thresholds stay
+    relative to the drive limit."""
     b_u = plant.kM * plant.ku / plant.R  # N·m per volt, the open-loop drive gain
     jsv = plant.J
 
@@ -135,7 +149,7 @@ def _effects(
         "resonance": torque("resonance", f",frequency_hz={g.uniform(20, 70):.3f}"),
         "deadzone": lambda m: (f"deadzone:u0={m * 0.004 * u_max:.6g}", m * 0.004 * u_max * b_u),
         "saturation": saturation,
-        "delay": lambda m: (f"delay:delay_s={m * 0.0005:.6g}", math.nan),
+        "delay": lambda m: (f"delay:delay_s={m * 0.0005:.6g}", delay_torque(command, m * 0.0005, b_u, dt)),
         "friction_asymmetry": lambda m: (
             f"friction_asymmetry:ratio={(1 + 0.01 * m) ** (1 if g.random() < 0.5 else -1):.6g}",
             0.01 * m * plant.tau_c,
@@ -170,9 +184,10 @@ def cases(
         profile = profiles[(k // 3) % len(profiles)]
         if cause != "none":
             command = None
-            if cause == "saturation" and profile in OPEN_PROFILES:
+            if cause in ("saturation", "delay") and profile in OPEN_PROFILES:
                 command = open_loop_command(cfg, profile, seconds, 10_000 * seed + k)
-            text, torque = _effects(plant, cfg.drive.u_max_v, g, command)[cause](m)
+            dt = 1.0 / cfg.control.rate_hz
+            text, torque = _effects(plant, cfg.drive.u_max_v, g, command, dt)[cause](m)
         units = torque / (plant.J * sigma) if math.isfinite(torque) else math.nan
         if cause == "colored_noise" and profile in OPEN_PROFILES:
             sigma = coloured_sigma(sigma, m * COLOUR_TAU_S)
