@@ -190,13 +190,7 @@ def name_cause(
             # scan's luck, explains does not carry over.
             # The model checked is the one the decision tested (baseline + the winning block),
             # not the structural refit, which can trade differently with friction.
-            # A clip is the exception: on a staircase it touches one or two stairs, and the
-            # linearised block at the coarse scanned level also moves stairs the clip does not
-            # touch, so folds without the clipped stair cannot fit it (held-out gain −151 on a
-            # 3.6-noise-unit clip, seed 6): its structural model, no free coefficient, is checked.
-            X_cv = X_ext
-            if t.option is not None and t.cause != "saturation":
-                X_cv = np.column_stack([design.X, t.option.block])
+            X_cv = X_ext if t.option is None else np.column_stack([design.X, t.option.block])
             ok = C.heldout_gain(design, out, X_cv) > 0.0
         ranked.append(Scored(t.cause, effect, t.z, t.p, ok and chosen is None))
         if ok and chosen is None:
