@@ -22,9 +22,10 @@ from scipy.stats import chi2
 SEGMENT_S = 4.0
 PEAK_Q = 5.0  # a spectral peak this sharp is a structural mode; broader is a low-pass colour
 # The peak against the flat floor (3 more parameters, its frequency scanned): the Whittle ratio
-# on a 50 %-overlapped Welch spectrum is not χ²₃. Calibrated on 500 simulated null residuals
-# (flat + differentiated measurement noise in any mix, 30 s and 60 s at the doctor's 250 Hz
-# rows; scripts/naming_peak_null.py): 99 % point ≈ 30, Gumbel 99.9 % ≈ 42, largest seen 45.
+# on a 50 %-overlapped Welch spectrum is not χ²₃. Calibrated on 700 simulated null residuals
+# (flat + differentiated measurement noise in any mix, at the doctor's 250 Hz rows; 400 of 30 s,
+# 300 of 60 s; scripts/naming_peak_null.py): 99 % points 28.9 / 31.7, Gumbel 99.9 % points
+# 41.4 / 43.4, largest 44.8 / 36.1 — none above 45.
 PEAK_WHITE_LR = 45.0
 
 
