@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import gzip
 import json
 import math
 import sys
@@ -78,8 +79,12 @@ def _done(out: Path) -> set[tuple[int, str, float]]:
     return keys
 
 
+def _text(path: Path) -> str:
+    return gzip.decompress(path.read_bytes()).decode() if path.suffix == ".gz" else path.read_text()
+
+
 def summary(paths: list[Path]) -> None:
-    rows = [json.loads(x) for p in paths if p.exists() for x in p.read_text().splitlines() if x.strip()]
+    rows = [json.loads(x) for p in paths if p.exists() for x in _text(p).splitlines() if x.strip()]
     table: dict[str, dict[float, list[dict[str, object]]]] = defaultdict(lambda: defaultdict(list))
     for r in rows:
         table[r["cause"]][r["size"]].append(r)
