@@ -205,7 +205,12 @@ INPUT_CAUSES = ("deadzone", "saturation", "delay")
 
 def supported_threshold(prep: Prepared, x: float) -> bool:
     """Whether SUPPORT of the samples lie on each side of the command level x (all samples: below
-    a dead zone the shaft stands still, and that is the evidence)."""
+    a dead zone the shaft stands still, and that is the evidence).
+
+    Both sides strictly: a staircase holds its levels exactly, so a level x = the top level had
+    ≥ 1 % of samples "not below" it while none exceeded it — a saturation there clips nothing,
+    and the refit landed on it (then `sense` called it "above almost every command")."""
     mag = np.abs(prep.data.u)
-    below = float(np.mean(mag < x)) if len(mag) else 0.0
-    return SUPPORT <= below <= 1 - SUPPORT
+    if not len(mag):
+        return False
+    return float(np.mean(mag < x)) >= SUPPORT and float(np.mean(mag > x)) >= SUPPORT

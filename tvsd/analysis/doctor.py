@@ -30,7 +30,7 @@ from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis import instrument, sense
 from tvsd.analysis.dataset import Dataset
-from tvsd.analysis.noise import NoiseReport, analyse
+from tvsd.analysis.noise import NoiseReport, analyse, spectral_cause
 from tvsd.analysis.prep import Band, prepare
 from tvsd.analysis.simulate import ReducedModel, simulate
 from tvsd.causes import Effect
@@ -39,7 +39,6 @@ from tvsd.model import effects as E
 HOLDOUT_SPLIT = 2 / 3
 SIM_WINDOW_S = 1.0
 COLOUR_P = 1e-3  # the noise colour's likelihood ratio (χ², 1 dof) must beat this p-value
-PEAK_Q = 5.0  # a spectral peak this sharp is a structural mode; broader is a low-pass colour
 ALPHA = C.ALPHA
 INPUT_CAUSES = ("deadzone", "saturation", "delay")
 
@@ -208,7 +207,8 @@ def _diagnose(
     )
     cause, effect = verdict.cause, verdict.effect
     J = params["J"]
-    peak = colour_sig and noise.peak_q >= PEAK_Q and noise.peak_lr > chi2.isf(COLOUR_P, 2)
+    # The peak is tested before the low-pass colour (noise.spectral_cause), not only once it fired.
+    peak = note is None and spectral_cause(noise, COLOUR_P) == "resonance"
     peak_amp = abs(J) * math.sqrt(2.0) * noise.peak_rms
     if cause == "none" and peak:
         # Coloured, and the colour is a narrow peak: a structural mode, not a low-pass disturbance.

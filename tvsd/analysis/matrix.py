@@ -72,12 +72,73 @@ def scan_rps(plant: Any, u_max: float) -> float:
     return float(max(1.5, min(CLOSED_RPS, held / (2 * math.pi) - 1.0)))
 
 
+SAT_TOP_Q = 0.99  # open loop: saturation thresholds are set below this quantile of |command|
+SAT_STEP = 0.01  # … by m × this share of it (1×: 1 % below, 30×: 30 % below)
+
+
+def open_loop_command(cfg: Config, profile: str, seconds: float, seed: int) -> np.ndarray:
+    """The command `sim record` will play for this case (its rng is the record's seed): known
+    before the run, so an effect that acts on the command can be sized where the command is."""
+    from tvsd.sim.record import multisine, staircase
+
+    shape = staircase if profile == "steps" else multisine
+    return shape(np.random.default_rng(seed), seconds, cfg.drive.u_max_v, 1.0 / cfg.control.rate_hz)
+
+
+def saturation_size(command: np.ndarray, m: float) -> tuple[float, float]:
+    """u_max for size m, and the command's rms excess over it (V).
+
+    The threshold sits m·SAT_STEP below the command's SAT_TOP_Q quantile, so at every size at
+    least 1 % of the samples exceed it — the clip is in the data. (The drive limit was the
+    reference before: 0.99–0.90 × u_max lay above every command in 20 of 24 cases.)"""
+    mag = np.abs(command)
+    u_max = float(np.quantile(mag, SAT_TOP_Q)) * (1.0 - SAT_STEP * m)
+    excess = float(np.sqrt(np.mean(np.maximum(mag - u_max, 0.0) ** 2)))
+    return u_max, excess
+
+
+COLOUR_TAU_S = 0.0005  # colored_noise: τ = m × this (corner 1/(2πτ): 318 Hz at 1×, 11 Hz at 30×)
+
+
+def coloured_sigma(sigma_v: float, tau_s: float) -> float:
+    """The OU vibration's standard deviation whose low-frequency intensity is the white one's.
+
+    The SIL's colored_noise replaces the white Δv (two-sided acceleration PSD σv²) by an OU
+    acceleration of standard deviation σ (PSD 2σ²τ at low frequency): with σ = σv the coloured
+    vibration was 2τ/s of the null's (1 % at 5 ms) and sank under the speed-measurement noise,
+    so the case tested the vibration's level, not its colour. With σ = σv/√(2τ) the spectrum is
+    the null's below the corner 1/(2πτ) and falls above it: the colour alone differs."""
+    return sigma_v / math.sqrt(2.0 * tau_s)
+
+
+def delay_torque(command: np.ndarray | None, delay_s: float, b_u: float, dt: float) -> float:
+    """A delay's torque-equivalent size: the drive's torque error from applying the command late,
+    b_u·rms(u(t) − u(t − τ)) (nan where the command is not known before the run)."""
+    if command is None:
+        return math.nan
+    k = max(1, round(delay_s / dt))
+    return b_u * float(np.sqrt(np.mean((command[k:] - command[:-k]) ** 2)))
+
+
 # cause -> (effect text for size m, torque-equivalent size for J·σv units)
 def _effects(
-    plant: Any, u_max: float, g: np.random.Generator
+    plant: Any,
+    u_max: float,
+    g: np.random.Generator,
+    command: np.ndarray | None = None,
+    dt: float = 1e-4,
 ) -> dict[str, Callable[[float], tuple[str, float]]]:
+    """`command`: the open-loop case's command on the plant's step `dt` (saturation is sized on
+    it, a delay's noise units measured on it); None in closed loop, where the thresholds stay
+    relative to the drive limit."""
     b_u = plant.kM * plant.ku / plant.R  # N·m per volt, the open-loop drive gain
     jsv = plant.J
+
+    def saturation(m: float) -> tuple[str, float]:
+        if command is None:
+            return f"saturation:u_max={u_max * (1 - 0.01 * m):.6g}", m * 0.01 * u_max * b_u
+        x, excess = saturation_size(command, m)
+        return f"saturation:u_max={x:.6g}", excess * b_u
 
     def torque(name: str, extra: str) -> Callable[[float], tuple[str, float]]:
         return lambda m: (f"{name}:amplitude={m * 0.5 * jsv:.6g}{extra}", m * 0.5 * jsv)
@@ -87,8 +148,8 @@ def _effects(
         "cogging": torque("cogging", f",order={int(g.integers(2, 9))}"),
         "resonance": torque("resonance", f",frequency_hz={g.uniform(20, 70):.3f}"),
         "deadzone": lambda m: (f"deadzone:u0={m * 0.004 * u_max:.6g}", m * 0.004 * u_max * b_u),
-        "saturation": lambda m: (f"saturation:u_max={u_max * (1 - 0.01 * m):.6g}", m * 0.01 * u_max * b_u),
-        "delay": lambda m: (f"delay:delay_s={m * 0.0005:.6g}", math.nan),
+        "saturation": saturation,
+        "delay": lambda m: (f"delay:delay_s={m * 0.0005:.6g}", delay_torque(command, m * 0.0005, b_u, dt)),
         "friction_asymmetry": lambda m: (
             f"friction_asymmetry:ratio={(1 + 0.01 * m) ** (1 if g.random() < 0.5 else -1):.6g}",
             0.01 * m * plant.tau_c,
@@ -97,7 +158,7 @@ def _effects(
             f"drift:parameter={['R', 'kv', 'friction'][int(g.integers(3))]},relative_change={0.005 * m:.6g}",
             math.nan,
         ),
-        "colored_noise": lambda m: (f"colored_noise:tau_s={m * 0.0005:.6g}", math.nan),
+        "colored_noise": lambda m: (f"colored_noise:tau_s={m * COLOUR_TAU_S:.6g}", math.nan),
     }
 
 
@@ -107,7 +168,9 @@ def cases(
     seed: int = 0,
     causes: tuple[str, ...] | None = None,
     profiles: tuple[str, ...] = OPEN_PROFILES,
+    seconds: float = 30.0,
 ) -> list[Case]:
+    """`seconds`: the cases' length (open-loop saturation is sized on the command of that length)."""
     cfg = load_config()
     out: list[Case] = []
     plan: list[tuple[str, float]] = [("none", 0.0)] * n_null
@@ -118,14 +181,31 @@ def cases(
         plant = _plant(cfg, g)
         text, torque = (None, math.nan)
         sigma = SIGMAS[k % 3]
-        if cause != "none":
-            text, torque = _effects(plant, cfg.drive.u_max_v, g)[cause](m)
-        units = torque / (plant.J * sigma) if math.isfinite(torque) else math.nan
-        p = {k2: getattr(plant, k2) for k2 in ("J", "kv", "R", "kM", "tau_c")}
         profile = profiles[(k // 3) % len(profiles)]
+        if cause != "none":
+            command = None
+            if cause in ("saturation", "delay") and profile in OPEN_PROFILES:
+                command = open_loop_command(cfg, profile, seconds, 10_000 * seed + k)
+            dt = 1.0 / cfg.control.rate_hz
+            text, torque = _effects(plant, cfg.drive.u_max_v, g, command, dt)[cause](m)
+        units = torque / (plant.J * sigma) if math.isfinite(torque) else math.nan
+        if cause == "colored_noise" and profile in OPEN_PROFILES:
+            sigma = coloured_sigma(sigma, m * COLOUR_TAU_S)
+        p = {k2: getattr(plant, k2) for k2 in ("J", "kv", "R", "kM", "tau_c")}
         rps = scan_rps(plant, cfg.drive.u_max_v) if profile in CLOSED_PROFILES else 0.0
         out.append(Case(10_000 * seed + k, cause, m, units, text, profile, sigma, p, rps))
     return out
+
+
+def case_config(cfg: Config, case: Case) -> Config:
+    """The config with the case's plant and vibration level."""
+    plant = dataclasses.replace(cfg.plant, **case.plant)  # type: ignore[arg-type]
+    plant = dataclasses.replace(
+        plant, kb=plant.kM * cfg.plant.kb / cfg.plant.kM, L=cfg.plant.L * plant.R / cfg.plant.R
+    )
+    sil = cfg.sil_or_default
+    vib = dataclasses.replace(sil.vibration, sigma_v=case.sigma_v)
+    return dataclasses.replace(cfg, plant=plant, sil=dataclasses.replace(sil, vibration=vib))
 
 
 def run_case(case: Case, seconds: float, tmp: Path, iv: bool = False) -> dict[str, Any]:
@@ -133,14 +213,7 @@ def run_case(case: Case, seconds: float, tmp: Path, iv: bool = False) -> dict[st
     from tvsd.analysis.doctor import diagnose
     from tvsd.sim.record import record
 
-    cfg = load_config()
-    plant = dataclasses.replace(cfg.plant, **case.plant)  # type: ignore[arg-type]
-    plant = dataclasses.replace(
-        plant, kb=plant.kM * cfg.plant.kb / cfg.plant.kM, L=cfg.plant.L * plant.R / cfg.plant.R
-    )
-    sil = cfg.sil_or_default
-    vib = dataclasses.replace(sil.vibration, sigma_v=case.sigma_v)
-    cfg = dataclasses.replace(cfg, plant=plant, sil=dataclasses.replace(sil, vibration=vib))
+    cfg = case_config(load_config(), case)
     effects: tuple[Effect, ...] = (parse_effect(case.effect),) if case.effect else ()
     path = tmp / f"case{case.seed}.csv"
     record(cfg, path, case.profile, seconds, effects, case.seed, rps=case.rps or 20.0)
@@ -180,7 +253,7 @@ def run(
     t0 = time.perf_counter()
     results = []
     with tempfile.TemporaryDirectory() as tmp:
-        for case in cases(n_null, reps, seed, causes, profiles):
+        for case in cases(n_null, reps, seed, causes, profiles, seconds):
             results.append(run_case(case, seconds, Path(tmp), iv))
     return summarise(results, f"doctor_{loop}{'_iv' if iv else ''}", time.perf_counter() - t0)
 

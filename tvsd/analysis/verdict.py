@@ -168,8 +168,10 @@ def name_cause(
             # under one by its fraction, which the baseline's two input columns already hold):
             # the scanned block fitted noise.
             fs = design.prep.data.sample_rate_hz
+            # Grid cell 1 counts when its fraction puts the delay past one sample (1.5 ms read
+            # as 1.62 ms from cell 1 was dissolved: 2 of 20 matrix delays at 3x, seed 6).
             dissolved = t.cause == "delay" and (
-                int(effect.get("grid_samples", 0)) < 2 or float(effect["delay_s"]) < 1.0 / fs
+                int(effect.get("grid_samples", 0)) < 1 or float(effect["delay_s"]) < 1.0 / fs
             )
         if (above and chosen is None) or t.cause in (
             "imbalance",
