@@ -76,6 +76,19 @@ def _refit_input(
     return effect, best[2]
 
 
+def _dissolved(cause: str, effect: dict[str, Any], u: np.ndarray, fs: float) -> bool:
+    """The structural refit lands on "no effect": the scanned block fitted noise or misfit, not
+    the cause. A delay under two samples on the grid, or under one by its fraction (the
+    baseline's two input columns already hold it); a saturation that clips less than the
+    support a threshold needs (D.SUPPORT of the samples; it used to become `model_mismatch`,
+    "above almost every command", on nulls whose best clip was the largest command itself)."""
+    if cause == "delay":
+        return int(effect.get("grid_samples", 0)) < 2 or float(effect["delay_s"]) < 1.0 / fs
+    if cause == "saturation" and "u_max" in effect:
+        return float(np.mean(np.abs(u) > float(effect["u_max"]))) < D.SUPPORT
+    return False
+
+
 def dead_zone(u: np.ndarray, u0: float) -> np.ndarray:
     return np.where(np.abs(u) <= u0, 0.0, u - np.sign(u) * u0)
 
@@ -164,13 +177,7 @@ def name_cause(
         if above and chosen is None and t.option is not None and t.cause in D.INPUT_CAUSES:
             effect, u_app = _refit_input(design, out, t.cause, u)
             X_ext = D.with_input(design, u_app)
-            # The structural refit lands on "no effect" (a delay under two samples on the grid, or
-            # under one by its fraction, which the baseline's two input columns already hold):
-            # the scanned block fitted noise.
-            fs = design.prep.data.sample_rate_hz
-            dissolved = t.cause == "delay" and (
-                int(effect.get("grid_samples", 0)) < 2 or float(effect["delay_s"]) < 1.0 / fs
-            )
+            dissolved = _dissolved(t.cause, effect, u, design.prep.data.sample_rate_hz)
         if (above and chosen is None) or t.cause in (
             "imbalance",
             "cogging",
