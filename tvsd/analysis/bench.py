@@ -10,12 +10,17 @@ import time
 from pathlib import Path
 
 
-def bench_doctor() -> dict[str, object]:
-    """The 60 s timing, then the randomised matrix (tvsd.analysis.matrix: ≥ 50 nulls), open loop
-    and closed loop (scanning with tvsctl identify's excitation)."""
+def bench_doctor(n_null: int = 50, reps: int = 3, seed: int = 0) -> dict[str, object]:
+    """The 60 s timing, then the randomised matrix (tvsd.analysis.matrix: `n_null` nulls and
+    `reps` effect cases per cause and size), open loop and closed loop (scanning with tvsctl
+    identify's excitation)."""
     from tvsd.analysis.matrix import run
 
-    return {**bench_analyze(), **run(loop="open"), **run(loop="closed")}
+    return {
+        **bench_analyze(),
+        **run(n_null=n_null, reps=reps, seed=seed, loop="open"),
+        **run(n_null=n_null, reps=reps, seed=seed, loop="closed"),
+    }
 
 
 def bench_analyze(seconds: float = 60.0) -> dict[str, float]:
