@@ -164,6 +164,7 @@ def name_cause(
     u = design.prep.data.u  # the recorded command, or in closed loop its instrument (instrument.py)
     ranked: list[Any] = []
     chosen: tuple[str, dict[str, Any], np.ndarray, np.ndarray] | None = None  # cause, effect, X, u
+    disowned = False  # a command-side winner dissolved in its structural refit
     for t in out.tested:
         above = out.significant and t.z > out.threshold
         effect: dict[str, Any] = dict(t.option.effect) if t.option is not None else {}
@@ -174,10 +175,17 @@ def name_cause(
         elif t.option is not None and t.cause not in D.INPUT_CAUSES:
             X_ext = np.column_stack([design.X, t.option.block])
         dissolved = False
-        if above and chosen is None and t.option is not None and t.cause in D.INPUT_CAUSES:
+        if above and chosen is None and t.cause in D.INPUT_CAUSES and disowned:
+            # A command-side block ranked higher dissolved in its refit: what it fitted is misfit
+            # where the command acts, and the other command-side blocks (functions of the same
+            # command) see that same misfit — in closed loop the command answers the noise, and
+            # 3 of 6 closed-loop null alarms were a dead zone or a clip named after a dissolved
+            # delay at z 8.5–9.7.
+            dissolved = True
+        elif above and chosen is None and t.option is not None and t.cause in D.INPUT_CAUSES:
             effect, u_app = _refit_input(design, out, t.cause, u)
             X_ext = D.with_input(design, u_app)
-            dissolved = _dissolved(t.cause, effect, u, design.prep.data.sample_rate_hz)
+            dissolved = disowned = _dissolved(t.cause, effect, u, design.prep.data.sample_rate_hz)
         if (above and chosen is None) or t.cause in (
             "imbalance",
             "cogging",
