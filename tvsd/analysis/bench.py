@@ -32,9 +32,16 @@ RECORDINGS = {  # figure key -> (profile, effect)
 
 
 def bench_doctor(
-    cases: int | None = None, workers: int | None = None, progress: Callable[[str], None] | None = None
+    cases: int | None = None,
+    workers: int | None = None,
+    progress: Callable[[str], None] | None = None,
+    n_null: int = 50,
+    reps: int = 3,
+    seed: int = 0,
 ) -> dict[str, Any]:
-    """The 60 s timings, then the matrix, open and closed loop (all its cases, or `cases` of each)."""
+    """The 60 s timings, then the randomised matrix (tvsd.analysis.matrix: `n_null` nulls and
+    `reps` effect cases per cause and size; all its cases, or `cases` of each), open loop and
+    closed loop (scanning with tvsctl identify's excitation)."""
     say = progress or (lambda _msg: None)
     out: dict[str, Any] = {"doctor_load_avg_at_start": round(os.getloadavg()[0], 1)}  # wall reads by it
     for key, (profile, effect) in RECORDINGS.items():
@@ -42,7 +49,7 @@ def bench_doctor(
         out.update(bench_analyze(key, profile, effect))
     for loop in ("open", "closed"):
         say(f"matrix, {loop} loop")
-        out.update(run_matrix(loop, cases=cases, workers=workers))
+        out.update(run_matrix(loop, cases=cases, workers=workers, n_null=n_null, reps=reps, seed=seed))
     return out
 
 

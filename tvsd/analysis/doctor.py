@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
+from tvsd.analysis import absorber, instrument, sense
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
-from tvsd.analysis import instrument, sense
 from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.noise import NoiseReport, analyse, spectral_cause
 from tvsd.analysis.prep import Band, prepare
@@ -169,10 +169,10 @@ def _diagnose(
     rotary = data.units.axis == "rotary"
     say("preparing the regression (band-limited rows, baseline and candidate columns)")
     prep = prepare(data, band)
-    design = D.build(prep, data.offset_term, rotary)
+    design = absorber.absorb(D.build(prep, data.offset_term, rotary))
     measured = design
-    if iv and instrument.excited(data):  # closed loop, excited: 2SLS (instrument.py)
-        design, _ = instrument.instrumented(prep, data.offset_term, rotary, measured=measured)
+    if iv and instrument.excited(data):  # closed loop, excited: 2SLS (opt-in, README)
+        design = absorber.absorb(instrument.instrumented(prep, data.offset_term, rotary, measured=measured)[0])
     design.back_emf = data.b_omega > 0 or data.u_unit == "V"
     note = _closed_loop_note(data)
     if note is not None:
@@ -199,9 +199,13 @@ def _diagnose(
     resid = np.where(out.keep, instrument.residual(measured, design, verdict), 0.0)
     noise = analyse(resid, rate_rows, params["J"] if params["J"] > 0 else 1.0, prep.band.cutoff_hz)
     ranked = verdict.ranked
-    # Closed loop without an excited reference: the feedback shapes the equation's residual (the
-    # command answers its noise), so its colour says nothing of the vibration's; not a candidate.
-    colour_sig = noise.colour_p < COLOUR_P and note is None
+    # Closed loop: the feedback shapes the equation's residual (the command answers its noise,
+    # and least squares on that command leaves part of the noise's answer in the residual), so
+    # its colour says nothing of the vibration's — with a constant reference and with an excited
+    # one alike (a white-vibration identify null was `colored_noise`, τ 5 ms); not a candidate
+    # unless the reference instruments the fit (iv).
+    closed_ls = "omega_ref" in data.refs and design is measured
+    colour_sig = noise.colour_p < COLOUR_P and note is None and not closed_ls
     ranked.append(
         Scored("colored_noise", {"tau_s": noise.tau_s}, noise.colour_lr, noise.colour_p, colour_sig)
     )

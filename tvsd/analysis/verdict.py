@@ -76,6 +76,21 @@ def _refit_input(
     return effect, best[2]
 
 
+def _dissolved(cause: str, effect: dict[str, Any], u: np.ndarray, fs: float) -> bool:
+    """The structural refit lands on "no effect": the scanned block fitted noise or misfit, not
+    the cause. A delay on grid cell 0, or under one sample by its fraction (the
+    baseline's two input columns already hold it); a saturation that clips less than the
+    support a threshold needs (D.SUPPORT of the samples; it used to become `model_mismatch`,
+    "above almost every command", on nulls whose best clip was the largest command itself)."""
+    if cause == "delay":
+        # Grid cell 1 counts when its fraction puts the delay past one sample (1.5 ms read
+        # as 1.62 ms from cell 1 was dissolved: 2 of 20 matrix delays at 3x, seed 6).
+        return int(effect.get("grid_samples", 0)) < 1 or float(effect["delay_s"]) < 1.0 / fs
+    if cause == "saturation" and "u_max" in effect:
+        return float(np.mean(np.abs(u) > float(effect["u_max"]))) < D.SUPPORT
+    return False
+
+
 def dead_zone(u: np.ndarray, u0: float) -> np.ndarray:
     return np.where(np.abs(u) <= u0, 0.0, u - np.sign(u) * u0)
 
@@ -151,6 +166,7 @@ def name_cause(
     u = design.prep.data.u  # the recorded command, or in closed loop its instrument (instrument.py)
     ranked: list[Any] = []
     chosen: tuple[str, dict[str, Any], np.ndarray, np.ndarray] | None = None  # cause, effect, X, u
+    disowned = False  # a command-side winner dissolved in its structural refit
     for t in out.tested:
         above = out.significant and t.z > out.threshold
         effect: dict[str, Any] = dict(t.option.effect) if t.option is not None else {}
@@ -161,18 +177,17 @@ def name_cause(
         elif t.option is not None and t.cause not in D.INPUT_CAUSES:
             X_ext = np.column_stack([design.X, t.option.block])
         dissolved = False
-        if above and chosen is None and t.option is not None and t.cause in D.INPUT_CAUSES:
+        if above and chosen is None and t.cause in D.INPUT_CAUSES and disowned:
+            # A command-side block ranked higher dissolved in its refit: what it fitted is misfit
+            # where the command acts, and the other command-side blocks (functions of the same
+            # command) see that same misfit — in closed loop the command answers the noise, and
+            # 3 of 6 closed-loop null alarms were a dead zone or a clip named after a dissolved
+            # delay at z 8.5–9.7.
+            dissolved = True
+        elif above and chosen is None and t.option is not None and t.cause in D.INPUT_CAUSES:
             effect, u_app = _refit_input(design, out, t.cause, u)
             X_ext = D.with_input(design, u_app)
-            # The structural refit lands on "no effect" (a delay under two samples on the grid, or
-            # under one by its fraction, which the baseline's two input columns already hold):
-            # the scanned block fitted noise.
-            fs = design.prep.data.sample_rate_hz
-            # Grid cell 1 counts when its fraction puts the delay past one sample (1.5 ms read
-            # as 1.62 ms from cell 1 was dissolved: 2 of 20 matrix delays at 3x, seed 6).
-            dissolved = t.cause == "delay" and (
-                int(effect.get("grid_samples", 0)) < 1 or float(effect["delay_s"]) < 1.0 / fs
-            )
+            dissolved = disowned = _dissolved(t.cause, effect, u, design.prep.data.sample_rate_hz)
         if (above and chosen is None) or t.cause in (
             "imbalance",
             "cogging",

@@ -79,7 +79,7 @@ def _fuzz(frames: int = 1_000_000) -> dict[str, Any]:
     return bench_fuzz(frames)
 
 
-def _doctor(args: argparse.Namespace | None = None) -> dict[str, Any]:
+def _doctor(args: argparse.Namespace) -> dict[str, Any]:
     from tvsd.analysis.bench import bench_doctor
     from tvsd.cli.progress import on_terminal
 
@@ -87,8 +87,14 @@ def _doctor(args: argparse.Namespace | None = None) -> dict[str, Any]:
         if on_terminal():
             print(f"  doctor: {message}", file=sys.stderr, flush=True)
 
-    cases, workers = (args.cases, args.workers) if args is not None else (None, None)
-    return bench_doctor(cases=cases, workers=workers, progress=say)
+    return bench_doctor(
+        cases=args.cases,
+        workers=args.workers,
+        progress=say,
+        n_null=args.nulls,
+        reps=args.reps,
+        seed=args.matrix_seed,
+    )
 
 
 def _api() -> dict[str, Any]:
@@ -141,6 +147,27 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         type=_positive_int,
         default=1_000_000,
         help="damaged frames per decoder for the fuzz group (default 10^6: 7 s idle, ~70 s loaded)",
+    )
+    p.add_argument(
+        "--nulls",
+        type=_whole(0, 100_000, "a number of null recordings 0..100000"),
+        default=50,
+        metavar="N",
+        help="doctor: null recordings per loop (default 50; ≈ 2 s of CPU each)",
+    )
+    p.add_argument(
+        "--reps",
+        type=_whole(0, 1000, "a number of effect cases 0..1000"),
+        default=3,
+        metavar="N",
+        help="doctor: effect cases per cause and size (default 3; 0: the nulls alone)",
+    )
+    p.add_argument(
+        "--matrix-seed",
+        type=_whole(0, 2**31, "a seed 0..2^31"),
+        default=0,
+        metavar="S",
+        help="doctor: the matrix's seed, both loops (default 0)",
     )
     p.add_argument(
         "--seconds", type=_positive_float, default=600.0, metavar="S", help="soak: its length (default 600)"
@@ -223,14 +250,12 @@ def _run(args: argparse.Namespace) -> int:
             t0 = time.monotonic()
             if name in ON_REQUEST:
                 got = ON_REQUEST[name](args)
+            elif name == "fuzz":
+                got = BENCHES[name](args.frames)
+            elif name == "doctor":
+                got = BENCHES[name](args)
             else:
-                got = (
-                    BENCHES[name](args.frames)
-                    if name == "fuzz"
-                    else _doctor(args)
-                    if name == "doctor"
-                    else BENCHES[name]()
-                )
+                got = BENCHES[name]()
             figures.update(got)
             done.append(name)
             if not args.json:  # each group as it finishes: a long suite is never silent

@@ -1,0 +1,49 @@
+"""The misfit absorber: friction of any smooth symmetric shape in the doctor's null model.
+
+The baseline's friction is viscous + Coulomb + one Stribeck bump (tvsd.analysis.design), and a
+real drive's is not exactly that: LuGre's pre-sliding and a Stribeck speed below the rows kept,
+another bench's bearings. What the three terms miss is left in the residual as a function of ω,
+and its projection on a cause's columns — a dead zone's near-zero commands, the direction split
+of friction asymmetry (on a record whose speeds are not symmetric an odd misfit is not
+orthogonal to the even columns), sin φ on a slow multisine — was named as that cause with the
+out-of-sample check confirming it (it is systematic; README, "False alarms").
+
+So the null model carries a few more odd basis functions of ω: sgn ω·e^{−|ω|/(c·ω_top)} for
+c in SCALES (Stribeck-like decays from the stuck threshold to a third of the top speed).
+They are baseline columns: the bootstrap's residual degrees of freedom and the out-of-sample
+check count them, and every cause is tested against a model that already has them.
+
+Odd only, by design: an even function of ω is friction that differs by direction, the cause
+`friction_asymmetry` itself (with ω and sgn ω in the baseline, |ω| and a constant span exactly
+its block), so absorbing it would remove the cause, not the misfit. Nor does an odd function of
+ω span a dead zone (a function of the command), a saturation or a delay.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tvsd.analysis.design import Design
+
+SCALES = (0.03, 0.1, 0.3)  # decay speeds, shares of the largest |ω| of the rows
+
+
+def columns(design: Design) -> tuple[np.ndarray, tuple[str, ...]]:
+    """The absorber's columns on the design's rows (band-limited as every other column)."""
+    prep = design.prep
+    w = prep.speed
+    top = float(np.max(np.abs(prep.rows(w))))
+    if top <= 0:
+        return np.zeros((len(design.y), 0)), ()
+    s = np.sign(w)
+    cols = [prep.band_rows(s * np.exp(-np.abs(w) / (c * top))) for c in SCALES]
+    return np.column_stack(cols), tuple(f"fo{c:g}" for c in SCALES)
+
+
+def absorb(design: Design) -> Design:
+    """The design with the absorber's columns appended to its baseline (in place, returned)."""
+    W, names = columns(design)
+    if W.shape[1]:
+        design.X = np.column_stack([design.X, W])
+        design.names = (*design.names, *names)
+    return design
