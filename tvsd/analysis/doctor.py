@@ -172,7 +172,8 @@ def _diagnose(
     design = absorber.absorb(D.build(prep, data.offset_term, rotary))
     measured = design
     if iv and instrument.excited(data):  # closed loop, excited: 2SLS (opt-in, README)
-        design = absorber.absorb(instrument.instrumented(prep, data.offset_term, rotary, measured=measured)[0])
+        instrumented, _ = instrument.instrumented(prep, data.offset_term, rotary, measured=measured)
+        design = absorber.absorb(instrumented)
     design.back_emf = data.b_omega > 0 or data.u_unit == "V"
     note = _closed_loop_note(data)
     if note is not None:
