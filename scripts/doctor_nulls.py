@@ -37,14 +37,7 @@ def record_case(case: M.Case, seconds: float, path: Path) -> Any:
     from tvsd.config import load_config
     from tvsd.sim.record import record
 
-    cfg = load_config()
-    plant = dataclasses.replace(cfg.plant, **case.plant)  # type: ignore[arg-type]
-    plant = dataclasses.replace(
-        plant, kb=plant.kM * cfg.plant.kb / cfg.plant.kM, L=cfg.plant.L * plant.R / cfg.plant.R
-    )
-    sil = cfg.sil_or_default
-    vib = dataclasses.replace(sil.vibration, sigma_v=case.sigma_v)
-    cfg = dataclasses.replace(cfg, plant=plant, sil=dataclasses.replace(sil, vibration=vib))
+    cfg = M.case_config(load_config(), case)
     if not path.exists():
         effects = (parse_effect(case.effect),) if case.effect else ()
         tmp = path.with_suffix(".part")

@@ -72,14 +72,7 @@ def round_length(n_null: int, reps: int, sizes: tuple[float, ...]) -> int:
 
 
 def case_config(case: M.Case, identify: dict[str, Any] | None = None) -> Config:
-    cfg = load_config()
-    plant = dataclasses.replace(cfg.plant, **case.plant)  # type: ignore[arg-type]
-    plant = dataclasses.replace(
-        plant, kb=plant.kM * cfg.plant.kb / cfg.plant.kM, L=cfg.plant.L * plant.R / cfg.plant.R
-    )
-    sil = cfg.sil_or_default
-    vib = dataclasses.replace(sil.vibration, sigma_v=case.sigma_v)
-    cfg = dataclasses.replace(cfg, plant=plant, sil=dataclasses.replace(sil, vibration=vib))
+    cfg = M.case_config(load_config(), case)
     if identify:
         given: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in identify.items()}
         cfg = dataclasses.replace(cfg, identify=dataclasses.replace(cfg.identify, **given))
