@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parent.parent
 CONTROL = ROOT / "tvsd" / "control"
 WORD_MODULES = ("runner", "words", "kernel", "link_tx", "latency", "layout")
 # The public names of those modules that are not words.
-PUBLIC = {"TICK_DTYPE", "TICK_FIELDS", "EXTRAPOLATE_MAX_NS", "LATCH_OFF"}
+PUBLIC = {"TICK_DTYPE", "TICK_FIELDS", "EXTRAPOLATE_MAX_NS", "LATCH_OFF", "BINS_PER_DECADE"}
 ALLOWED = {
     # The offline simulation's own kernel runs the law on its own controller array: it reads the
     # law's words from the one layout (that is the point of having one).

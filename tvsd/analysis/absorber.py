@@ -26,6 +26,7 @@ import numpy as np
 from tvsd.analysis.design import Design
 
 SCALES = (0.03, 0.1, 0.3)  # decay speeds, shares of the largest |ω| of the rows
+PREFIX = "fo"  # the absorber's column names: fo0.03, ...
 
 
 def columns(design: Design) -> tuple[np.ndarray, tuple[str, ...]]:
@@ -37,7 +38,15 @@ def columns(design: Design) -> tuple[np.ndarray, tuple[str, ...]]:
         return np.zeros((len(design.y), 0)), ()
     s = np.sign(w)
     cols = [prep.band_rows(s * np.exp(-np.abs(w) / (c * top))) for c in SCALES]
-    return np.column_stack(cols), tuple(f"fo{c:g}" for c in SCALES)
+    return np.column_stack(cols), tuple(f"{PREFIX}{c:g}" for c in SCALES)
+
+
+def base_count(design: Design) -> int:
+    """The number of the design's baseline columns before the absorber's (which come last)."""
+    n = len(design.names)
+    while n and design.names[n - 1].startswith(PREFIX):
+        n -= 1
+    return n
 
 
 def absorb(design: Design) -> Design:

@@ -53,19 +53,53 @@ def bench_doctor(
     return out
 
 
+# A Python child reports its own peak (VmHWM of its own memory map) on a pipe as it exits. wait4's
+# ru_maxrss will not do: exec keeps the larger of the old and new maps' peaks, and the old map
+# is the parent's (fork and vfork alike), so under pytest a 10 MiB child read 593 MiB.
+_OWN_PEAK = """
+import atexit, os, runpy, sys
+def _peak():
+    with open('/proc/self/status') as f:
+        kib = next((ln.split()[1] for ln in f if ln.startswith('VmHWM:')), '0')
+    os.write(fd, kib.encode())
+atexit.register(_peak)
+fd, flag, what, *rest = int(sys.argv[1]), *sys.argv[2:]
+sys.argv = [what if flag == '-m' else '-c', *rest]
+if flag == '-m':
+    runpy.run_module(what, run_name='__main__', alter_sys=True)
+else:
+    exec(compile(what, '<string>', 'exec'), {'__name__': '__main__'})
+"""
+
+
 def _child(cmd: list[str], env: dict[str, str]) -> tuple[float, float, float]:
-    """(wall s, CPU s, peak RSS MiB) of one child process, from its own rusage (wait4)."""
+    """(wall s, CPU s, peak RSS MiB) of one Python child (`python -m M …` or `python -c S …`):
+    CPU from its own rusage (wait4), the peak as it reports it."""
+    if cmd[1] not in ("-m", "-c"):
+        raise ValueError(f"bench children are `python -m` or `python -c`, got {cmd[:2]}")
+    peak_r, peak_w = os.pipe()
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, ru = os.wait4(proc.pid, 0)
+    try:
+        proc = subprocess.Popen(
+            [cmd[0], "-c", _OWN_PEAK, str(peak_w), *cmd[1:]],
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            pass_fds=(peak_w,),
+        )
+    finally:
+        os.close(peak_w)
+    with os.fdopen(peak_r, "rb") as peak_pipe:
+        err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+        _, status, ru = os.wait4(proc.pid, 0)
+        peak_kib = peak_pipe.read().decode() or "0"
     wall = time.perf_counter() - t0
     proc.returncode = os.waitstatus_to_exitcode(status)
-    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
     if proc.stderr:
         proc.stderr.close()
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd[2:5])} … exited {proc.returncode}: {err.strip()[-300:]}")
-    return wall, ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024.0
+    return wall, ru.ru_utime + ru.ru_stime, int(peak_kib) / 1024.0
 
 
 def bench_analyze(

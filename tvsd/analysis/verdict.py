@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from tvsd.analysis import absorber, sense
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
-from tvsd.analysis import sense
 from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.prep import Band, prepare
 
@@ -194,8 +194,9 @@ def name_cause(
             "resonance",
             "friction_asymmetry",
         ):
-            th = C.gls(design.y, X_ext, out.ar, out.keep).theta
-            effect.update(_translate(t.cause, effect, th, design, J))
+            X_rigid, b = _rigid(design, X_ext)
+            th = C.gls(design.y, X_rigid, out.ar, out.keep).theta
+            effect.update(_translate(t.cause, effect, th, design, J, b))
         ok = above and not dissolved
         if ok and t.cause == "drift" and t.coef is not None:
             ok = _drift_agrees(design, out, str(effect["parameter"]), float(t.coef[0]))
@@ -218,9 +219,9 @@ def name_cause(
         # torque inflates the baseline's uncertainty, not the drive's.
         from tvsd.analysis.doctor import _physical
 
-        k = design.X.shape[1]
-        fin = C.gls(design.y, X_fin, out.ar, out.keep)
-        params, err = _physical(design, fin.theta[:k], fin.cov[:k, :k], data.b_u, data.b_omega)
+        X_rigid, b = _rigid(design, X_fin)
+        fin = C.gls(design.y, X_rigid, out.ar, out.keep)
+        params, err = _physical(design, fin.theta[:b], fin.cov[:b, :b], data.b_u, data.b_omega)
     reason = sense.baseline_problem(params, err) if drive_identifiable else None
     if chosen is not None and reason is None:
         problem = sense.effect_problem(cause, effect_out, u, params["time_constant_s"], data.sample_rate_hz)
@@ -234,11 +235,20 @@ def name_cause(
     return Verdict(ranked, cause, effect_out, reason, residual, X_fin, th, u_fin)
 
 
+def _rigid(design: D.Design, X: np.ndarray) -> tuple[np.ndarray, int]:
+    """X (the baseline, then an extension's columns) without the misfit absorber's columns, and
+    the baseline's remaining width. Parameters are read from the rigid model plus the cause: the
+    absorber's odd friction shapes trade with viscous and Coulomb friction (EMPS's direction
+    ratio read 1.62 for the published 1.44 with them) and stand in for misfit, not the drive."""
+    b, k = absorber.base_count(design), design.X.shape[1]
+    return np.column_stack([X[:, :b], X[:, k:]]), b
+
+
 def _translate(
-    cause: str, effect: dict[str, Any], th: np.ndarray, design: D.Design, J: float
+    cause: str, effect: dict[str, Any], th: np.ndarray, design: D.Design, J: float, k: int
 ) -> dict[str, Any]:
-    """Free coefficients of the extended fit → the cause's parameters (DESIGN.md names)."""
-    k = design.X.shape[1]
+    """Free coefficients of the extended fit (its baseline `k` columns wide) → the cause's
+    parameters (DESIGN.md names)."""
     names = dict(zip(design.names, th[:k], strict=False))
     extra = th[k:]
     if cause in ("imbalance", "cogging", "resonance") and len(extra) >= 2:
@@ -298,11 +308,12 @@ def heldout_speed(
     split = t_rows[0] + D_SPLIT * (t_rows[-1] - t_rows[0])
     rows = None if heldout is not None else t_rows < split
     target = heldout if heldout is not None else data
-    base = C.gls(design.y, design.X, out.ar, out.keep, rows)
+    # The rigid model's coefficients: the simulation has no absorber shape to spend them on.
+    X_base, k = _rigid(design, design.X)
+    base = C.gls(design.y, X_base, out.ar, out.keep, rows)
     extended = cause not in ("none", "model_mismatch", "colored_noise")
-    ext = C.gls(design.y, verdict.X, out.ar, out.keep, rows) if extended else base
+    ext = C.gls(design.y, _rigid(design, verdict.X)[0], out.ar, out.keep, rows) if extended else base
     pb, _ = _physical(design, base.theta, base.cov, data.b_u, data.b_omega)
-    k = design.X.shape[1]
     pe, _ = _physical(design, ext.theta[:k], ext.cov[:k, :k], data.b_u, data.b_omega)
     mask = np.ones(len(target.t), dtype=bool) if heldout is not None else target.t >= split
     measured = target.speed if target.speed is not None else prepare(target, band).speed
