@@ -378,13 +378,6 @@ class VirtualMcu:
 
     # ---- byte pump ----------------------------------------------------------------------
     def _pump(self) -> None:
-        # When the pty was last seen empty. Bytes read now arrived after it: if this thread was
-        # held off the CPU (the machine's load, not the wire), they are stamped there, at the
-        # earliest time they can have arrived, not at the late read — a real UART has them when
-        # they are sent, and a stamp moved late by the simulator's own scheduling would make the
-        # firmware see a heartbeat gap the host never left. A prompt pump looks every
-        # _PUMP_PERIOD_S, so a real gap on the wire still shows to within that.
-        empty_at = time.monotonic()
         while not self._stop.is_set():
             readable, _, _ = select.select([self._master], [], [], _PUMP_PERIOD_S)
             data = b""
@@ -395,16 +388,14 @@ class VirtualMcu:
                     data = b""
                 except OSError:  # pty gone (closing)
                     return
-            now = time.monotonic()  # before the lock: a plant holding it does not delay it
-            arrival = min(now, empty_at + _PUMP_PERIOD_S) if data else now
-            empty_at = now
+            arrival = time.monotonic()  # before the lock: a plant holding it does not delay it
             timeline = self.rx_timeline
             at = math.nan if timeline is None or not data else timeline(arrival)
             with self._lock:
                 # Time first: received bytes are handled at the time they arrived, so a
                 # heartbeat_ack's mcu_ticks matches the host's clock to the pump's latency.
                 if self.clock == "wall":
-                    self._advance_locked(self._ticks(arrival - self._t0))  # to the bytes' arrival
+                    self._advance_locked(self._ticks(self._wall_s()))
                 if self.cable_cut:  # a cut cable: what the host sends never arrives, nor ours
                     data = b""
                     self._drain_locked()
@@ -417,8 +408,6 @@ class VirtualMcu:
                         self._rx_queue.append((when, arrival, data))  # ahead of the core: later
                     else:
                         self._rx_locked(arrival, data)
-                if self.clock == "wall":
-                    self._advance_locked(self._ticks(now - self._t0))
                 self._drain_locked()
                 if self._backlog:  # non-blocking; under the lock, as advances append to it
                     try:
