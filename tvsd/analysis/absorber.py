@@ -49,6 +49,16 @@ def base_count(design: Design) -> int:
     return n
 
 
+def rigid(design: Design, X: np.ndarray) -> tuple[np.ndarray, int]:
+    """X (the design's baseline, then any extension's columns) without the absorber's columns,
+    and the baseline's remaining width. The drive's parameters and the causes' sizes are read
+    from the rigid model: the absorber's odd shapes trade with viscous and Coulomb friction
+    (EMPS's damping read 173 for the published 203.5 N·s/m, its direction ratio 1.62 for 1.44)
+    and stand in for misfit, not for the drive."""
+    b, k = base_count(design), design.X.shape[1]
+    return np.column_stack([X[:, :b], X[:, k:]]), b
+
+
 def absorb(design: Design) -> Design:
     """The design with the absorber's columns appended to its baseline (in place, returned)."""
     W, names = columns(design)

@@ -190,11 +190,9 @@ def _diagnose(
     say("testing every cause against the bootstrap null of the fitted baseline")
     out = C.test_all(design, seed=seed)
     fit = C.gls(design.y, design.X, out.ar, out.keep)
-    # The drive's parameters (and their physical checks) from the rigid model alone: the
-    # absorber's odd friction shapes trade with viscous and Coulomb friction (EMPS's damping
-    # read 173 for the published 203.5 N·s/m with them; a SIL identify export's kv < 0), and
-    # they stand in for the misfit, not for the drive. The absorber's columns come last.
-    rigid = C.gls(design.y, design.X[:, : absorber.base_count(design)], out.ar, out.keep)
+    # The drive's parameters (and their physical checks) from the rigid model alone (a SIL
+    # identify export's kv came out < 0 with the absorber's shapes in the fit).
+    rigid = C.gls(design.y, absorber.rigid(design, design.X)[0], out.ar, out.keep)
     params, err = _physical(design, rigid.theta, rigid.cov, data.b_u, data.b_omega)
     from tvsd.analysis.verdict import name_cause  # the per-cause translation (effects, checks)
 

@@ -194,7 +194,7 @@ def name_cause(
             "resonance",
             "friction_asymmetry",
         ):
-            X_rigid, b = _rigid(design, X_ext)
+            X_rigid, b = absorber.rigid(design, X_ext)
             th = C.gls(design.y, X_rigid, out.ar, out.keep).theta
             effect.update(_translate(t.cause, effect, th, design, J, b))
         ok = above and not dissolved
@@ -219,7 +219,7 @@ def name_cause(
         # torque inflates the baseline's uncertainty, not the drive's.
         from tvsd.analysis.doctor import _physical
 
-        X_rigid, b = _rigid(design, X_fin)
+        X_rigid, b = absorber.rigid(design, X_fin)
         fin = C.gls(design.y, X_rigid, out.ar, out.keep)
         params, err = _physical(design, fin.theta[:b], fin.cov[:b, :b], data.b_u, data.b_omega)
     reason = sense.baseline_problem(params, err) if drive_identifiable else None
@@ -233,15 +233,6 @@ def name_cause(
     th = C.gls(design.y, X_fin, out.ar, out.keep).theta
     residual = design.y - X_fin @ th
     return Verdict(ranked, cause, effect_out, reason, residual, X_fin, th, u_fin)
-
-
-def _rigid(design: D.Design, X: np.ndarray) -> tuple[np.ndarray, int]:
-    """X (the baseline, then an extension's columns) without the misfit absorber's columns, and
-    the baseline's remaining width. Parameters are read from the rigid model plus the cause: the
-    absorber's odd friction shapes trade with viscous and Coulomb friction (EMPS's direction
-    ratio read 1.62 for the published 1.44 with them) and stand in for misfit, not the drive."""
-    b, k = absorber.base_count(design), design.X.shape[1]
-    return np.column_stack([X[:, :b], X[:, k:]]), b
 
 
 def _translate(
@@ -309,10 +300,10 @@ def heldout_speed(
     rows = None if heldout is not None else t_rows < split
     target = heldout if heldout is not None else data
     # The rigid model's coefficients: the simulation has no absorber shape to spend them on.
-    X_base, k = _rigid(design, design.X)
+    X_base, k = absorber.rigid(design, design.X)
     base = C.gls(design.y, X_base, out.ar, out.keep, rows)
     extended = cause not in ("none", "model_mismatch", "colored_noise")
-    ext = C.gls(design.y, _rigid(design, verdict.X)[0], out.ar, out.keep, rows) if extended else base
+    ext = C.gls(design.y, absorber.rigid(design, verdict.X)[0], out.ar, out.keep, rows) if extended else base
     pb, _ = _physical(design, base.theta, base.cov, data.b_u, data.b_omega)
     pe, _ = _physical(design, ext.theta[:k], ext.cov[:k, :k], data.b_u, data.b_omega)
     mask = np.ones(len(target.t), dtype=bool) if heldout is not None else target.t >= split

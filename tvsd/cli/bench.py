@@ -176,7 +176,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--cases",
         type=_cases,
         metavar="N",
-        help="doctor: N matrix cases per loop, spread over nulls, causes and sizes (default: all 158; "
+        help="doctor: N matrix cases per loop, spread over nulls, causes and sizes (default: all; 158 "
+        "at the default --nulls and --reps; "
         "20 take ~5 min on 2 cores)",
     )
     p.add_argument(
