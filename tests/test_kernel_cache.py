@@ -68,3 +68,28 @@ def test_this_process_uses_the_fingerprinted_cache() -> None:
     from numba.core import config
 
     assert Path(config.CACHE_DIR).name == f"kernels-{KC.fingerprint()}"
+
+
+def test_a_user_who_cannot_write_the_package_still_runs_kernels(tmp_path: Path) -> None:
+    """An installed package is root's; a user running `tvsctl analyze` from it cannot write its
+    __pycache__: numba found no cache locator and every kernel module's import raised (exit 70).
+    Run as `nobody` (no writable home) with the package's cache dir not writable."""
+    import shutil
+    import subprocess
+    import sys
+
+    setpriv = shutil.which("setpriv")
+    if os.geteuid() != 0 or setpriv is None:
+        pytest.skip("needs root and setpriv to run a process as another user")
+    as_nobody = [setpriv, "--reuid=65534", "--regid=65534", "--clear-groups", sys.executable, "-c"]
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
+    env["HOME"] = "/nonexistent"
+    probe = subprocess.run([*as_nobody, "import numba"], cwd="/", env=env, capture_output=True)
+    if probe.returncode != 0:
+        pytest.skip(f"nobody cannot run this interpreter: {probe.stderr.decode()[-200:]}")
+    run = subprocess.run(
+        [*as_nobody, "import os, tvsd.model.lugre; print(os.environ['NUMBA_CACHE_DIR'])"],
+        cwd="/", env=env, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr[-1000:]
+    assert Path(run.stdout.strip()).parent.name == "tvsd-numba-65534"

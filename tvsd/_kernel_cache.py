@@ -19,6 +19,7 @@ import os
 import re
 import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 _PACKAGE = Path(__file__).resolve().parent
@@ -77,6 +78,10 @@ def point_numba_cache(package: Path = _PACKAGE) -> Path:
     base = Path(env) if env else package / "__pycache__" / "numba"
     if base.name.startswith(_PREFIX):
         base = base.parent
+    if not _writable(base):
+        # an installed package (root-owned site-packages) run by a user: numba would find no
+        # place to cache and every kernel's import would raise (`tvsctl analyze` exited 70)
+        base = _user_base()
     target = base / f"{_PREFIX}{fingerprint(package)}"
     if not target.is_dir() and base.is_dir():
         for old in base.glob(f"{_PREFIX}*"):  # for sources that no longer exist here
@@ -87,3 +92,34 @@ def point_numba_cache(package: Path = _PACKAGE) -> Path:
 
         setattr(config, "CACHE_DIR", str(target))  # noqa: B010 (set by numba at run time: not in its stubs)
     return target
+
+
+def _writable(path: Path) -> bool:
+    """Whether `path` is, or can be made as, a directory this process writes into."""
+    for p in (path, *path.parents):
+        try:
+            os.stat(p)
+        except FileNotFoundError:
+            continue
+        except OSError:  # a parent we may not search
+            return False
+        return p.is_dir() and os.access(p, os.W_OK | os.X_OK)
+    return False
+
+
+def _user_base() -> Path:
+    """The user's own cache ($XDG_CACHE_HOME or ~/.cache), else a directory of this user's in the
+    temp dir: made 0700 and checked to be ours, since a cached kernel is code this process runs."""
+    xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    home = Path(xdg) / "tvsd" / "numba"
+    if Path(xdg).is_absolute() and _writable(home):
+        return home
+    own = Path(tempfile.gettempdir()) / f"tvsd-numba-{os.getuid()}"
+    try:
+        own.mkdir(mode=0o700, exist_ok=True)
+        st = own.lstat()
+    except OSError:
+        return own  # numba says what it cannot do, as before
+    if st.st_uid != os.getuid() or not own.is_dir() or own.is_symlink() or st.st_mode & 0o022:
+        raise RuntimeError(f"{own} is not this user's private directory: remove it, or set NUMBA_CACHE_DIR")
+    return own
