@@ -74,9 +74,18 @@ def write(
 def read(path: Path) -> Recording:
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # -sig: a spreadsheet's UTF-8 BOM is dropped
     except FileNotFoundError:
         raise DataFileError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise DataFileError(
+            f"{path}: is a directory; give a recording CSV (a daemon recording becomes one with "
+            "`tvsctl export REC --csv OUT`)"
+        ) from None
+    except PermissionError:
+        raise DataFileError(
+            f"{path}: cannot read: permission denied; check the file's mode or owner"
+        ) from None
     except UnicodeDecodeError:
         raise DataFileError(f"{path}: not a text file (expected a tvs recording CSV)") from None
     except OSError as exc:
@@ -115,9 +124,12 @@ def read(path: Path) -> Recording:
     header = [h.strip() for h in lines[row].split(",")]
     missing = [c for c in REQUIRED if c not in header]
     if missing:
+        sep = next((c for c in ";\t|" if c in lines[row] and "," not in lines[row]), None)
+        hint = f": its columns are separated by {sep!r}; the recording CSV uses ',' (and '.' for decimals)"
         raise fail(
             row + 1,
-            f"missing column(s) {', '.join(missing)} in header {lines[row]!r} (need t,u,omega; phi optional)",
+            f"missing column(s) {', '.join(missing)} in header {lines[row]!r} (need t,u,omega; phi optional)"
+            + (hint if sep else ""),
         )
     if len(set(header)) != len(header):
         raise fail(row + 1, f"duplicate column names in header {lines[row]!r}")

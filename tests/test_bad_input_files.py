@@ -1,0 +1,60 @@
+"""Data files as other tools write them (tvsctl analyze's reader, tvsd/recording/csvfile.py): a
+spreadsheet's UTF-8 byte-order mark is read, not refused; a file with other separators, a
+directory or an unreadable file is one line naming the cause and the fix, exit 2."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tvsd.cli.main import main
+from tvsd.errors import DataFileError
+from tvsd.recording import csvfile
+
+T = np.arange(3000) / 1000
+U = np.where((T % 1) < 0.5, 5.0, -5.0)
+W = np.cumsum(U) / 1000
+
+
+def _text(sep: str = ",", newline: str = "\n") -> str:
+    lines = ["# tvs-recording: 1", "# sample_rate_hz: 1000", sep.join(("t", "u", "omega"))]
+    lines += [sep.join((f"{a:.4f}", repr(float(b)), repr(float(c)))) for a, b, c in zip(T, U, W, strict=True)]
+    return newline.join(lines) + newline
+
+
+@pytest.mark.parametrize("newline", ["\n", "\r\n"])
+def test_a_byte_order_mark_is_read(tmp_path: Path, newline: str) -> None:
+    """Excel's "CSV UTF-8" starts with U+FEFF: it was refused as "expected '# tvs-recording: 1' as
+    the first line, got '\\ufeff# tvs-recording: 1'"."""
+    path = tmp_path / "bom.csv"
+    path.write_bytes(b"\xef\xbb\xbf" + _text(newline=newline).encode())
+    rec = csvfile.read(path)
+    assert len(rec.t) == len(T) and np.allclose(rec.omega, W)
+
+
+@pytest.mark.parametrize("sep", [";", "\t"])
+def test_other_separators_are_named(tmp_path: Path, capsys: pytest.CaptureFixture[str], sep: str) -> None:
+    path = tmp_path / "semi.csv"
+    path.write_text(_text(sep))
+    assert main(["analyze", str(path), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"separated by {sep!r}" in err and "uses ','" in err and err.count("\n") == 1, err
+
+
+def test_a_directory_says_how_to_get_a_csv(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["analyze", str(tmp_path), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "is a directory" in err and "tvsctl export" in err and err.count("\n") == 1, err
+
+
+def test_an_unreadable_file_says_permission(tmp_path: Path) -> None:
+    path = tmp_path / "r.csv"
+    path.write_text(_text())
+    path.chmod(0)
+    if os.access(path, os.R_OK):
+        pytest.skip("this user reads any file (root)")
+    with pytest.raises(DataFileError, match="permission denied; check the file's mode"):
+        csvfile.read(path)
