@@ -153,3 +153,30 @@ def test_bench_prints_the_promised_figures(capsys, monkeypatch):
     res = run_json(capsys, "bench", "--only", "sim")
     assert {"sim_realtime_factor", "control_step_ns", "plant_step_ns", "cli_warm_start_s"} <= res.keys()
     assert res["sim_realtime_factor"] > 0 and res["control_step_ns"] > 0
+
+
+def _plant_config(tmp_path, line: str, new: str):
+    from conftest import daemon_config
+
+    return str(daemon_config(tmp_path, {line: new}))
+
+
+def test_a_small_inductance_is_integrated_not_diverged(capsys, tmp_path):
+    """L = 0.1 mH (a real small motor) puts h·R/L = 11 at 10 kHz, beyond RK4's 2.8: `sim step`
+    printed final_deg null, exit 0. The plant now takes substeps as `sim record` does."""
+    cfg = _plant_config(tmp_path, "L: 1.332e-3 ", "L: 1.0e-4 ")
+    res = run_json(capsys, "sim", "step", "--ref-deg", "20", "--config", cfg, "--seconds", "0.6")
+    assert res["final_deg"] == pytest.approx(20.0, abs=0.4)  # inside the 2 % band, as the default plant
+
+
+@pytest.mark.parametrize(
+    "line,new,needle",
+    [
+        ("J: 6.378e-5 ", "J: 1.0e-10 ", "the simulation diverged"),  # bristle mode h·√(σ0/J) = 5.5
+        ("L: 1.332e-3 ", "L: 1.0e-12 ", "an electrical time constant below"),  # 7.6e8 substeps: hung
+    ],
+)
+def test_a_plant_beyond_the_integrator_is_one_line_exit_2(capsys, tmp_path, line, new, needle):
+    cfg = _plant_config(tmp_path, line, new)
+    code, out, err = run(capsys, "sim", "step", "--ref-deg", "20", "--config", cfg, "--json")
+    assert code == EXIT_USAGE and needle in err and err.count("\n") == 1 and not out, (out, err)

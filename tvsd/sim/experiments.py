@@ -11,12 +11,13 @@ from typing import Any
 
 import numpy as np
 
-from tvsd.causes import Effect
+from tvsd.causes import Effect, parse_effects
 from tvsd.config import Config, Gains
 from tvsd.control.conditions import check_gains, warnings
 from tvsd.control.setup import Setup
 from tvsd.errors import UsageError
 from tvsd.sim import metrics, runs
+from tvsd.sim.record import substeps_for
 from tvsd.sim.spectrum import Spectrum, welch_lines
 
 # A spin is judged once the reference has reached its speed and the loop has settled: the default
@@ -24,6 +25,21 @@ from tvsd.sim.spectrum import Spectrum, welch_lines
 SETTLE_AFTER_RAMP_S = 1.0
 MIN_STEADY_S = 1.0
 IMU_RATE_HZ = 1000.0  # the SA vibration is analysed as the IMU samples it (MODEL-NOTES §4: ≥ 1 kHz)
+
+
+def _finite(trace: runs.Trace, cfg: Config, setup: Setup) -> runs.Trace:
+    """The run, or a usage error when the plant's numbers put a mode beyond the integrator's step:
+    `sim step` printed `final_deg: null`, exit 0, for a J of 1e-10 kg·m²."""
+    bad = ~(np.isfinite(trace.phi) & np.isfinite(trace.omega))
+    if not bad.any():
+        return trace
+    p, h = cfg.plant, setup.dt / setup.substeps
+    raise UsageError(
+        f"the simulation diverged at t = {float(trace.t[int(np.argmax(bad))]):.4g} s: the plant's numbers "
+        f"put a mode beyond the {h * 1e6:.3g} µs integration step (bristle h·√(σ0/J) = "
+        f"{h * math.sqrt(p.sigma0 / p.J):.3g}, electrical h·R/L = {h * p.R / p.L:.3g}; each must stay "
+        f"below ~2.8); check plant.J = {p.J:g} kg·m², plant.sigma0, plant.R and plant.L in the config"
+    )
 
 
 @dataclass(frozen=True)
@@ -62,9 +78,10 @@ def step(
     from tvsd.config import VibrationConfig
 
     vib = VibrationConfig(model="off") if vibration_off else None
+    substeps = max(substeps, substeps_for(cfg, ()))
     setup = Setup.from_config(cfg, gains=gains, ku=ku, vibration=vib, substeps=substeps)
     ref = math.radians(ref_deg)
-    trace = runs.step_response(setup, ref, seconds)
+    trace = _finite(runs.step_response(setup, ref, seconds), cfg, setup)
     conds = check_gains(setup.gains, cfg.plant, cfg.control.disturbance_bound_rad_s2, ku=ku)
     return StepResult(
         ref_deg=ref_deg,
@@ -170,9 +187,10 @@ def spin(
     # The paper's spinning runs were open loop with ku ≈ 166 (MODEL-NOTES §3); its closed-loop ku
     # (≈ 10) cannot reach scanning speed within the drive's voltage.
     ku = cfg.reproduction.open_loop_ku if cfg.reproduction is not None else None
-    setup = Setup.from_config(cfg, effects=effects, seed=seed, ku=ku)
+    used = effects if effects is not None else parse_effects(cfg.sil_or_default.effects)
+    setup = Setup.from_config(cfg, effects=used, seed=seed, ku=ku, substeps=substeps_for(cfg, used))
     decim = round(1.0 / (setup.dt * IMU_RATE_HZ))
-    trace = runs.spin(setup, rps, seconds, decim)
+    trace = _finite(runs.spin(setup, rps, seconds, decim), cfg, setup)
     steady = trace.t >= steady_from
     omega = trace.omega_mean[steady]
     dom_hz, dom_amp = metrics.dominant_frequency(trace.disturbance[steady], IMU_RATE_HZ)

@@ -100,6 +100,7 @@ def identify_table(
 
 
 RK4_LIMIT = 1.5  # h·R/L kept below this: RK4's stability limit on the real axis is 2.79
+MAX_SUBSTEPS = 1000  # plant steps per control tick: 0.1 µs at 10 kHz
 
 
 def substeps_for(cfg: Config, effects: tuple[Effect, ...]) -> int:
@@ -111,7 +112,15 @@ def substeps_for(cfg: Config, effects: tuple[Effect, ...]) -> int:
     for e in effects:
         if e.name == "drift" and e.params.get("parameter") == "R":
             r *= max(1.0, 1.0 + float(e.params.get("relative_change", 0.0)))
-    return max(1, math.ceil(r / cfg.plant.L / cfg.control.rate_hz / RK4_LIMIT))
+    n = max(1, math.ceil(r / cfg.plant.L / cfg.control.rate_hz / RK4_LIMIT))
+    if n > MAX_SUBSTEPS:  # a run would take hours (L = 1e-12 H: 7.6e8 plant steps per tick)
+        tau = cfg.plant.L / r
+        shortest = RK4_LIMIT / (MAX_SUBSTEPS * cfg.control.rate_hz)
+        raise UsageError(
+            f"plant.L / plant.R = {tau:.3g} s, an electrical time constant below the {shortest:.3g} s "
+            f"the simulator resolves; check plant.L ({cfg.plant.L:g} H: henries, not mH) and plant.R"
+        )
+    return n
 
 
 @dataclass(frozen=True)
