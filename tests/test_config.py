@@ -332,3 +332,14 @@ def test_a_control_character_is_one_line_naming_its_line(tmp_path):
     with pytest.raises(ConfigError) as err:
         load_config(path)
     assert str(err.value) == f"{path}:2: not valid YAML (control character '\\x1f'); remove it"
+
+
+def test_a_directory_or_binary_file_as_config_is_one_line_with_the_fix(tmp_path, capsys):
+    """`--config DIR` printed "[Errno 21] Is a directory: 'DIR'" (Python's words, no fix)."""
+    (tmp_path / "etc").mkdir()
+    status, lines = _check(tmp_path / "etc", capsys)
+    assert status == 2 and len(lines) == 1 and "is a directory, not a config file" in lines[0], lines
+    binary = tmp_path / "tvsd.yaml"
+    binary.write_bytes(b"\xff\xfe\x00plant")
+    status, lines = _check(binary, capsys)
+    assert status == 2 and len(lines) == 1 and "not UTF-8 text" in lines[0], lines

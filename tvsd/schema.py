@@ -118,8 +118,16 @@ def load_yaml(path: Path) -> LinedDict:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such config file; check the path (see config/ for examples)") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read config file: {exc}") from exc
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory, not a config file; give the YAML file in it") from None
+    except PermissionError:
+        raise ConfigError(
+            f"{path}: cannot read config file: permission denied; check its mode, or run as a user who may"
+        ) from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not UTF-8 text; a config is a YAML text file") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read config file: {exc.strerror}") from exc
     try:
         data = yaml.load(text, Loader=_LineLoader)
     except RecursionError:  # a flow collection nested past the stack, before MAX_DEPTH: no mark
