@@ -5,6 +5,10 @@ directory or an unreadable file is one line naming the cause and the fix, exit 2
 from __future__ import annotations
 
 import os
+import shutil
+import subprocess
+import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -58,3 +62,31 @@ def test_an_unreadable_file_says_permission(tmp_path: Path) -> None:
         pytest.skip("this user reads any file (root)")
     with pytest.raises(DataFileError, match="permission denied; check the file's mode"):
         csvfile.read(path)
+
+
+def _as_nobody(*argv: str) -> subprocess.CompletedProcess[str]:
+    setpriv = shutil.which("setpriv")
+    if os.geteuid() != 0 or setpriv is None:
+        pytest.skip("needs root and setpriv to run a process as another user")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
+    env["HOME"] = "/nonexistent"
+    cmd = [setpriv, "--reuid=65534", "--regid=65534", "--clear-groups", sys.executable, "-m", "tvsd.cli.main"]
+    return subprocess.run([*cmd, *argv], cwd="/", env=env, capture_output=True, text=True, timeout=120)
+
+
+def test_export_of_a_recording_this_user_may_not_read_says_permission() -> None:
+    """The daemon makes recordings 0750: another user's export said "not a tvsd recording (no
+    seg-*.tvsrec segment files in it)", and one under an unsearchable directory was an internal
+    error (exit 70, PermissionError)."""
+    with tempfile.TemporaryDirectory() as top:
+        os.chmod(top, 0o755)
+        rec = Path(top) / "rec-20261126-120000"
+        rec.mkdir(mode=0o750)
+        (rec / "seg-0000.tvsrec").write_bytes(b"")
+        hidden = Path(top) / "private"
+        hidden.mkdir(mode=0o700)
+        for path, needle in ((rec, "permission denied (the daemon makes them 0750)"),
+                             (hidden / "rec-x", "permission denied on a directory above it")):  # fmt: skip
+            run = _as_nobody("export", str(path), "--csv", str(Path(top) / "out.csv"))
+            assert run.returncode == 2 and needle in run.stderr, run.stderr
+            assert run.stderr.count("\n") == 1, run.stderr

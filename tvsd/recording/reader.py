@@ -9,6 +9,7 @@ good record of the last segment are a torn tail (``torn_tail_bytes``), reported,
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,7 +56,21 @@ class RecordingFile:
 def open_recording(path: str | Path) -> RecordingFile:
     """Read a recording directory (or one segment file). Damage is counted, never raised."""
     path = Path(path)
+    try:
+        path.stat()
+    except PermissionError:  # a parent this user may not search: is_dir() raises it
+        raise DataFileError(
+            f"{path}: cannot reach the recording: permission denied on a directory above it; "
+            "run as a user who may read it"
+        ) from None
+    except OSError:
+        pass  # is_dir()/is_file() below say no such recording
     if path.is_dir():
+        if not os.access(path, os.R_OK | os.X_OK):  # glob() would see nothing and blame the files
+            raise DataFileError(
+                f"{path}: cannot read the recording: permission denied (the daemon makes them 0750); "
+                "run as its user or a member of the directory's group"
+            )
         segments = sorted(path.glob(SEGMENT_GLOB))
         if not segments:
             raise DataFileError(f"{path}: not a tvsd recording (no {SEGMENT_GLOB} segment files in it)")
