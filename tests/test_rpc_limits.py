@@ -201,3 +201,24 @@ def test_connections_beyond_max_clients_are_told_and_closed(sock_path: Path) -> 
             assert (await d.call("count", {"n": 3}))["result"] == {"n": 3}
 
     run(body(), timeout=20.0)
+
+
+@pytest.mark.parametrize(
+    "raw",
+    [
+        b'{"jsonrpc":"2.0","id":1,"method":"' + b"m" * 50000 + b'"}\n',
+        b'{"jsonrpc":"2.0","id":1,"method":"speed","params":{"' + b"k" * 50000 + b'":1}}\n',
+    ],
+)
+def test_an_error_does_not_echo_a_whole_line(sock_path: Path, raw: bytes) -> None:
+    """An unknown 50 KB method or parameter name came back whole: a 50 KB error "line"."""
+
+    async def body() -> None:
+        async with RpcServer(sock_path, METHODS):
+            c = await Conn.open(sock_path)
+            await c.send(raw)
+            reply = await c.recv()
+            message = reply["error"]["message"]
+            assert len(message) <= 400 and message.endswith("characters, cut)"), message[-80:]
+
+    run(body(), timeout=20.0)

@@ -56,10 +56,15 @@ MAX_ID_CHARS = 256  # an id is echoed in the reply: a long one must not multiply
 Method = Callable[..., Awaitable[object]]
 
 
+MAX_ERROR_MESSAGE = 400  # characters: a message names what it saw, it does not repeat a whole line
+
+
 class RpcError(Exception):
     """Raised by a method to reply with a JSON-RPC error instead of a result."""
 
     def __init__(self, code: int, message: str, data: object | None = None) -> None:
+        if len(message) > MAX_ERROR_MESSAGE:  # it echoed a 50 KB method or parameter name back
+            message = f"{message[: MAX_ERROR_MESSAGE - 40]}… ({len(message)} characters, cut)"
         super().__init__(message)
         self.code = code
         self.message = message
