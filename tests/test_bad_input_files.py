@@ -90,3 +90,28 @@ def test_export_of_a_recording_this_user_may_not_read_says_permission() -> None:
             run = _as_nobody("export", str(path), "--csv", str(Path(top) / "out.csv"))
             assert run.returncode == 2 and needle in run.stderr, run.stderr
             assert run.stderr.count("\n") == 1, run.stderr
+
+
+@pytest.mark.parametrize(
+    "scale_u,scale_w,needle",
+    [(1e-300, 1e-300, "varies by only"), (1.0, 1e-300, "the speed never changes")],
+)
+def test_signals_too_small_to_be_measurements_are_bad_input(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], scale_u: float, scale_w: float, needle: str
+) -> None:
+    """u and ω of ~1e-300 passed the 'constant' checks (their span is not 0), then the fit's sums of
+    squares underflowed: two numpy RuntimeWarnings and a ZeroDivisionError, exit 70."""
+    import warnings
+
+    lines = ["# tvs-recording: 1", "# sample_rate_hz: 1000", "t,u,omega"]
+    speed = 100 + np.cumsum(U - 0.0) / 1000
+    lines += [
+        f"{a:.4f},{float(b) * scale_u!r},{float(c) * scale_w!r}" for a, b, c in zip(T, U, speed, strict=True)
+    ]
+    path = tmp_path / "tiny.csv"
+    path.write_text("\n".join(lines) + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main(["analyze", str(path), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count("\n") == 1, err

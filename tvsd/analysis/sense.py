@@ -19,6 +19,8 @@ from tvsd.errors import DataFileError
 MIN_ROWS = 500  # below this a 7-parameter fit with its noise model is not identifiable
 MIN_SECONDS = 1.0
 HUGE = 1e12  # larger values than this are not a measured speed, angle or command
+TINY = 1e-9  # a command span (V, A, N·m or duty) or speed (rad/s) this small is no signal: 1e-300
+# values made the fit's sums of squares underflow (numpy warnings, then a ZeroDivisionError, exit 70)
 
 
 def check_recording(d: Dataset) -> None:
@@ -39,16 +41,18 @@ def check_recording(d: Dataset) -> None:
                 f"{where}: row {int(big[0]) + 1} of the data: {name} = {x[big[0]]:g} is not a plausible "
                 "measurement (overflow or a unit error); repair or cut those rows"
             )
-    if float(np.ptp(d.u)) <= 0.0:
+    span = float(np.ptp(d.u))
+    if span <= TINY:
+        seen = f"is constant ({d.u[0]:g})" if span == 0.0 else f"varies by only {span:.3g} (at most {TINY:g})"
         raise DataFileError(
-            f"{where}: the command u is constant ({d.u[0]:g}): no excitation, nothing to identify "
+            f"{where}: the command u {seen}: no excitation, nothing to identify "
             "(record steps, a multisine or `tvsctl identify`)"
         )
     speed = d.speed if d.speed is not None else np.gradient(d.position, d.t)
-    if float(np.ptp(speed)) <= 0.0 or float(np.max(np.abs(speed))) == 0.0:
+    if float(np.ptp(speed)) <= TINY or float(np.max(np.abs(speed))) <= TINY:
         raise DataFileError(
-            f"{where}: the speed never changes: the drive did not move (is the motor connected, "
-            "the speed column right?)"
+            f"{where}: the speed never changes (by more than {TINY:g}): the drive did not move (is the "
+            "motor connected, the speed column right?)"
         )
 
 
