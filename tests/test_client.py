@@ -301,3 +301,26 @@ def test_points_prints_count_points_then_exits(
     assert (status, err) == (0, "")
     points = [json.loads(line) for line in out.splitlines()]
     assert len(points) == 3 and all(set(p) == {"x", "y"} for p in points)
+
+
+@pytest.mark.parametrize("argv", [["speed", "nan"], ["speed", "inf"], ["aim", "--xyz", "inf", "0", "0"]])
+def test_a_non_finite_number_is_refused_by_tvsctl_itself(
+    daemon: tuple[ThreadedRpcServer, FakeDaemon], capsys: pytest.CaptureFixture[str], argv: list[str]
+) -> None:
+    """`tvsctl speed nan` sent NaN (not JSON); tvsd's -32700 came back without our id and tvsctl
+    waited 5 s to say "tvsd did not answer 'speed' ... it may be stuck" (exit 3)."""
+    t, _ = daemon
+    status, _, err = tvsctl(capsys, *argv, "--socket", str(t.path))
+    assert status == 2 and "give a finite number" in err and err.count("\n") == 1, err
+
+
+def test_an_error_the_daemon_could_not_address_to_a_call_ends_it(
+    daemon: tuple[ThreadedRpcServer, FakeDaemon],
+) -> None:
+    """A request tvsd cannot read gets an error with id null: it is this call's answer, not a
+    5 s wait for one that never comes."""
+    t, _ = daemon
+    with RpcClient(t.path, timeout=5.0) as client:
+        client._connect().sendall(b"not json\n")  # as a client whose line tvsd cannot read
+        with pytest.raises(RemoteError, match="not JSON"):
+            client.call("status")

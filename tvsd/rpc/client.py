@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import os
 import socket
 from collections import deque
@@ -104,15 +105,20 @@ class RpcClient:
 
     def call(self, method: str, **params: object) -> object:
         """Call `method` with params by name; returns its result or raises a RemoteError."""
+        for name, value in params.items():
+            if isinstance(value, float) and not math.isfinite(value):  # NaN/Infinity are not JSON
+                raise UsageError(f"{method}: {name} = {value}: give a finite number")
         sock = self._connect()
         req_id = next(self._ids)
         req = {"jsonrpc": "2.0", "id": req_id, "method": method, "params": params}
         try:
-            sock.sendall(json.dumps(req, separators=(",", ":")).encode() + b"\n")
+            sock.sendall(json.dumps(req, separators=(",", ":"), allow_nan=False).encode() + b"\n")
             while True:
                 msg = self._read_message()
                 if msg.get("id") == req_id and ("result" in msg or "error" in msg):
                     break
+                if "id" in msg and msg["id"] is None and "error" in msg:
+                    break  # tvsd could not read our line as a request: its error is ours
                 if "method" in msg and "id" not in msg:
                     self._notes.append(msg)
         except TimeoutError as exc:
