@@ -144,3 +144,16 @@ def test_a_recording_without_identify_has_no_u_exc(tmp_path, monkeypatch, capsys
     status, _, err = _export(monkeypatch, capsys, tmp_path / "rec", tmp_path / "o.csv")
     assert status == 0, err
     assert "u_exc" not in read_csv(tmp_path / "o.csv").extra
+
+
+@pytest.mark.parametrize("name", ["seg-00000.tvsrec", "seg-0000.tvsrec", "rec.csv"])
+def test_export_never_writes_into_the_recording(tmp_path, monkeypatch, capsys, name):
+    """`--csv REC/seg-00000.tvsrec` overwrote the recording with its CSV (data lost); another
+    seg-*.tvsrec name beside it made every later export fail ('not a tvsd recording segment')."""
+    rec = tmp_path / "rec"
+    _record(rec, [np.arange(0, 3000)])
+    before = {p.name: p.read_bytes() for p in rec.iterdir()}
+    status, _, err = _export(monkeypatch, capsys, rec, rec / name)
+    assert status == 2 and "inside the recording" in err and err.count("\n") == 1, err
+    assert {p.name: p.read_bytes() for p in rec.iterdir()} == before
+    assert _export(monkeypatch, capsys, rec, tmp_path / "ok.csv")[0] == 0

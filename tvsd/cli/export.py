@@ -76,6 +76,7 @@ def _run(args: argparse.Namespace) -> int:
     if (args.csv is None) == (args.out is None) or (args.csv is not None and args.format != "csv"):
         raise UsageError("export: give --out OUT (with --format csv|parquet|mcap), or --csv OUT")
     out: Path = args.csv if args.csv is not None else args.out
+    _outside_the_recording(out, Path(args.rec))
     rec = open_recording(args.rec)
     for problem in rec.problems:
         warn(f"{args.rec}: {problem}")
@@ -117,6 +118,16 @@ def _run(args: argparse.Namespace) -> int:
         )
     print(f"{out}: {len(table.t)} rows, {span:.3f} s at {table.rate_hz:g} Hz from {args.rec}")
     return EXIT_OK
+
+
+def _outside_the_recording(out: Path, rec: Path) -> None:
+    """`--csv REC/seg-00000.tvsrec` replaced the recording with its own CSV, and any seg-*.tvsrec
+    name written inside REC made it unreadable: the recording is read-only to export."""
+    here = rec.resolve() if rec.is_dir() else rec.resolve().parent
+    target = out.resolve()
+    if target == rec.resolve() or here in target.parents:
+        where = "is the recording" if target == rec.resolve() else "is inside the recording"
+        raise UsageError(f"{out} {where} {rec}: writing there would overwrite or corrupt it; write elsewhere")
 
 
 def _gap_meta(table: Table) -> dict[str, object]:
