@@ -157,3 +157,12 @@ def test_export_never_writes_into_the_recording(tmp_path, monkeypatch, capsys, n
     assert status == 2 and "inside the recording" in err and err.count("\n") == 1, err
     assert {p.name: p.read_bytes() for p in rec.iterdir()} == before
     assert _export(monkeypatch, capsys, rec, tmp_path / "ok.csv")[0] == 0
+
+
+def test_export_of_a_segment_file_never_writes_over_it(tmp_path, monkeypatch, capsys):
+    rec = tmp_path / "rec"
+    _record(rec, [np.arange(0, 3000)])
+    (seg,) = rec.glob("seg-*.tvsrec")
+    before = seg.read_bytes()
+    status, _, err = _export(monkeypatch, capsys, seg, seg)
+    assert status == 2 and "is the recording" in err and seg.read_bytes() == before, err

@@ -123,9 +123,8 @@ def _run(args: argparse.Namespace) -> int:
 def _outside_the_recording(out: Path, rec: Path) -> None:
     """`--csv REC/seg-00000.tvsrec` replaced the recording with its own CSV, and any seg-*.tvsrec
     name written inside REC made it unreadable: the recording is read-only to export."""
-    here = rec.resolve() if rec.is_dir() else rec.resolve().parent
     target = out.resolve()
-    if target == rec.resolve() or here in target.parents:
+    if target == rec.resolve() or (rec.is_dir() and rec.resolve() in target.parents):
         where = "is the recording" if target == rec.resolve() else "is inside the recording"
         raise UsageError(f"{out} {where} {rec}: writing there would overwrite or corrupt it; write elsewhere")
 
