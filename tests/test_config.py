@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 import re
 from pathlib import Path
 
@@ -343,3 +344,23 @@ def test_a_directory_or_binary_file_as_config_is_one_line_with_the_fix(tmp_path,
     binary.write_bytes(b"\xff\xfe\x00plant")
     status, lines = _check(binary, capsys)
     assert status == 2 and len(lines) == 1 and "not UTF-8 text" in lines[0], lines
+
+
+def test_a_device_a_pipe_or_a_huge_file_as_config_is_refused_before_reading(tmp_path, capsys):
+    """`--config /dev/zero` (or a FIFO nobody writes) was read forever; a 2 MB file was parsed."""
+    fifo = tmp_path / "fifo.yaml"
+    os.mkfifo(fifo)
+    huge = tmp_path / "huge.yaml"
+    huge.write_text("#" * (2 << 20))
+    for path, needle in ((Path("/dev/zero"), "not a regular file"), (fifo, "not a regular file"),
+                         (huge, "a config is a few KB")):  # fmt: skip
+        status, lines = _check(path, capsys)
+        assert status == 2 and len(lines) == 1 and needle in lines[0], lines
+
+
+def test_a_sil_profile_that_is_a_directory_is_not_called_missing(tmp_path, capsys):
+    path = _write(tmp_path, None)
+    (tmp_path / "profiles").mkdir()
+    path.write_text(_shipped_text().replace("sil_profile: sil.yaml", "sil_profile: profiles"))
+    status, lines = _check(path, capsys)
+    assert status == 2 and len(lines) == 1 and "sil_profile: not a regular file" in lines[0], lines

@@ -12,6 +12,7 @@ import dataclasses
 import difflib
 import math
 import re
+import stat
 import types
 import typing
 from dataclasses import dataclass, field
@@ -112,9 +113,17 @@ _LineLoader.add_implicit_resolver(
 )
 
 
+MAX_CONFIG_BYTES = 1 << 20
+
+
 def load_yaml(path: Path) -> LinedDict:
     """Read a YAML file whose top level is a mapping; errors name the file and line."""
     try:
+        st = path.stat()
+        if stat.S_ISREG(st.st_mode) and st.st_size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"{path}: {st.st_size} bytes; a config is a few KB: is this the right file?")
+        if not stat.S_ISREG(st.st_mode) and not stat.S_ISDIR(st.st_mode):  # /dev/zero was read forever
+            raise ConfigError(f"{path}: not a regular file (a device or a pipe); give the YAML file")
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such config file; check the path (see config/ for examples)") from None

@@ -95,9 +95,9 @@ def load_config(path: str | Path | None = None, *, params: str | None = None) ->
                 f"give a file path relative to {path.name}"
             ) from None
         if not found:
+            what = "not a regular file:" if profile.exists() else "no such file"
             raise ConfigError(
-                f"{path}:{line}: sil_profile: no such file {profile}; "
-                f"give a file path relative to {path.name}"
+                f"{path}:{line}: sil_profile: {what} {profile}; give a file path relative to {path.name}"
             )
         cfg = dataclasses.replace(cfg, sil=load_sil_profile(profile))
     _check_effects(cfg.sil_or_default, path, data)
