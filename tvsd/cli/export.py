@@ -76,8 +76,8 @@ def _run(args: argparse.Namespace) -> int:
     if (args.csv is None) == (args.out is None) or (args.csv is not None and args.format != "csv"):
         raise UsageError("export: give --out OUT (with --format csv|parquet|mcap), or --csv OUT")
     out: Path = args.csv if args.csv is not None else args.out
+    rec = open_recording(args.rec)  # first: it says why a recording cannot be read
     _outside_the_recording(out, Path(args.rec))
-    rec = open_recording(args.rec)
     for problem in rec.problems:
         warn(f"{args.rec}: {problem}")
     if args.format == "mcap":  # every channel and the marks, not the loop table
