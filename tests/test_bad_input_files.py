@@ -115,3 +115,13 @@ def test_signals_too_small_to_be_measurements_are_bad_input(
         assert main(["analyze", str(path), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert needle in err and err.count("\n") == 1, err
+
+
+def test_a_device_or_a_pipe_is_not_read(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`tvsctl analyze /dev/zero` read until MemoryError (exit 70); a FIFO blocked for ever."""
+    fifo = tmp_path / "f.csv"
+    os.mkfifo(fifo)
+    for path in (Path("/dev/zero"), fifo):
+        assert main(["analyze", str(path), "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert "not a regular file" in err and err.count("\n") == 1, err

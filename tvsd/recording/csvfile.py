@@ -14,6 +14,7 @@ For numpy users: ``numpy.genfromtxt(path, delimiter=",", names=True, comments="#
 from __future__ import annotations
 
 import math
+import stat
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -74,6 +75,8 @@ def write(
 def read(path: Path) -> Recording:
     path = Path(path)
     try:
+        if not stat.S_ISREG(path.stat().st_mode) and not path.is_dir():  # /dev/zero: read until MemoryError
+            raise DataFileError(f"{path}: not a regular file (a device or a pipe); give the recording CSV")
         text = path.read_text(encoding="utf-8-sig")  # -sig: a spreadsheet's UTF-8 BOM is dropped
     except FileNotFoundError:
         raise DataFileError(f"{path}: no such file") from None
