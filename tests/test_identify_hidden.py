@@ -4,9 +4,12 @@ doctor must name it from the daemon's own recording, through the command line as
 The hidden effect is an imbalance of 2e-4 N·m at 25 rev/s (the SIL profile's `effects:`, which the
 daemon's recording does not carry): ≈ 6× the matrix's base size for the config's plant (0.5·J),
 where the closed-loop matrix names imbalance in every case from 3× (README, "Closed loop"); offline
-the same excitation named it on 2 of 2 seeds, with `none` on the two null runs. The daemon runs
-with the fail-safe times widened (conftest.RELAXED_FAILSAFE), as every SIL daemon test does, the
-MCU handshake and identify's speed check widened too, and --realtime: this test is about the
+the same excitation named it on 2 of 2 seeds, with `none` on the two null runs. The SIL link's own
+command-to-PWM latency is a second, real cause in this loop, larger than the imbalance (delay z
+158, then imbalance z 29 against the model holding the delay, gates ≈ 3.5): the doctor names
+every cause the data support (tvsd.analysis.selection), and the imbalance must be among them.
+The daemon runs with the fail-safe times widened (conftest.RELAXED_FAILSAFE), as every SIL daemon
+test does, the MCU handshake and identify's speed check widened too, and --realtime: this test is about the
 doctor's answer on a clean recording, not the fail-safe's timing (test_identify_daemon.py and
 test_daemon.py test those). A recording that shows the daemon stalled is skipped, with the reason.
 """
@@ -54,13 +57,6 @@ def hidden_daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path,
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=False,
-    reason="issue 12, open: the SIL link's command-to-PWM latency is a real delay in this loop "
-    "(6.1 ms read on the export); since the merged false-alarm and naming rules the doctor names "
-    "it ahead of the hidden imbalance (delay z 136, imbalance z 61; the closedid branch alone "
-    "named imbalance on the same file). One cause per verdict: reporting both is open.",
-)
 def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_path):
     _, sock, _ = hidden_daemon
     spin_to(sock, RPS, timeout=60)
@@ -96,6 +92,15 @@ def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_p
     )
     assert ana.returncode == 0, ana.stderr
     verdict = json.loads(ana.stdout)
-    assert verdict["cause"] == "imbalance", {k: verdict[k] for k in ("cause", "effect", "candidates")}
-    # the amplitude within a factor 2 of the hidden one
-    assert 1e-4 < verdict["effect"]["amplitude"] < 4e-4, verdict["effect"]
+    named = {c["cause"]: c for c in verdict["causes"]}
+    shown = {k: verdict[k] for k in ("cause", "causes", "candidates")}
+    assert "imbalance" in named, shown
+    # What else the loop holds: the link's command-to-PWM latency (a serial frame and the MCU's
+    # tick, 6.1-6.7 ms read on exports), a real delay of this plant; nothing else is hidden.
+    assert set(named) <= {"imbalance", "delay"}, shown
+    if "delay" in named:
+        assert 1e-3 < named["delay"]["effect"]["delay_s"] < 20e-3, shown
+    # The amplitude within 4 of its own standard errors (the vibration's share, and J's), a miss
+    # by chance ≈ 6e-5: on a 20 s export ±2.3e-5 N·m, so ±45 % (the factor 2 before was ±100 %/−50 %).
+    imb = named["imbalance"]["effect"]
+    assert abs(imb["amplitude"] - 2e-4) < 4 * imb["amplitude_se"], imb
