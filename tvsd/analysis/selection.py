@@ -67,8 +67,8 @@ def extend(design: D.Design, cause: str, X_fin: np.ndarray, u_applied: np.ndarra
     if cause in D.INPUT_CAUSES:
         data = dataclasses.replace(design.prep.data, u=np.asarray(u_applied, dtype=float))
         prep = dataclasses.replace(design.prep, data=data)
-        rotary = data.units.axis == "rotary"
-        rebuilt = D.options(prep, rotary, data.offset_term)
+        # rotary=False: the angle's blocks (imbalance, cogging: half the cost) are not rebuilt
+        rebuilt = D.options(prep, False, data.offset_term)
         for c in COMMAND_BLOCKS:
             if c in options and c in rebuilt:
                 options[c] = rebuilt[c]
