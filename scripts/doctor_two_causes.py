@@ -27,10 +27,14 @@ import numpy as np
 from tvsd.analysis import matrix as M
 
 
-def cases(first: str, sizes: set[float], imbalance: float, reps: int, seed: int) -> list[tuple[M.Case, str]]:
-    """(case with cause `first`, the imbalance's effect text) for the matrix's open-loop cases."""
+def cases(
+    first: str, sizes: set[float], imbalance: float, reps: int, seed: int, loop: str = "open"
+) -> list[tuple[M.Case, str]]:
+    """(case with cause `first`, the imbalance's effect text): the matrix's open-loop cases, or
+    its closed-loop ones (identify's excitation, scanning at the speed the plant holds)."""
     out = []
-    for c in M.cases(0, reps, seed, causes=(first,), profiles=M.OPEN_PROFILES):
+    profiles = M.OPEN_PROFILES if loop == "open" else M.CLOSED_PROFILES
+    for c in M.cases(0, reps, seed, causes=(first,), profiles=profiles):
         if c.size not in sizes:
             continue
         g = np.random.default_rng([seed, c.seed, 7])
@@ -52,7 +56,7 @@ def analyse(case: M.Case, extra: str, seconds: float, folder: Path) -> dict[str,
     if not path.exists():
         tmp = path.with_suffix(".part")
         effects = (parse_effect(case.effect), parse_effect(extra))
-        record(cfg, tmp, case.profile, seconds, effects, case.seed, rps=20.0)
+        record(cfg, tmp, case.profile, seconds, effects, case.seed, rps=case.rps or 20.0)
         tmp.rename(path)
     row: dict[str, Any] = {
         "seed": case.seed,
@@ -106,6 +110,7 @@ def main() -> int:
     ap.add_argument("--sizes", default="10,30", help="its matrix sizes")
     ap.add_argument("--imbalance", type=float, default=10.0, help="the added imbalance's matrix size")
     ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--loop", choices=("open", "closed"), default="open")
     ap.add_argument("--seed", type=int, default=41)
     ap.add_argument("--seconds", type=float, default=30.0)
     ap.add_argument("--out", type=Path)
@@ -123,7 +128,7 @@ def main() -> int:
         done = {json.loads(x)["seed"] for x in a.out.read_text().splitlines() if x.strip()}
     a.cache.mkdir(parents=True, exist_ok=True)
     sizes = {float(x) for x in a.sizes.split(",")}
-    for case, extra in cases(a.first, sizes, a.imbalance, a.reps, a.seed):
+    for case, extra in cases(a.first, sizes, a.imbalance, a.reps, a.seed, a.loop):
         if case.seed in done:
             continue
         row = analyse(dataclasses.replace(case), extra, a.seconds, a.cache)

@@ -234,7 +234,7 @@ def _diagnose(
             "q": noise.peak_q,
         }
     ranked.sort(key=lambda s: (s.cause != cause, not s.significant, -s.z))
-    causes = _causes(design, out, verdict, cause, effect, ranked, params, err, data, note is None, seed, say)
+    causes = _causes(design, out, verdict, cause, effect, ranked, params, err, data, seed, say)
     effect = causes[0].effect if causes else effect  # with its amplitude's standard error
     say("simulating baseline and extension on the held-out data")
     from tvsd.analysis.verdict import heldout_speed
@@ -272,7 +272,6 @@ def _causes(
     params: dict[str, float],
     err: dict[str, float],
     data: Dataset,
-    drive_identifiable: bool,
     seed: int,
     say: Progress,
 ) -> list[selection.Named]:
@@ -296,7 +295,7 @@ def _causes(
     if not decided:
         return [first]
     say("testing the other causes against the model extended by the named one")
-    return [first, *selection.further(design, verdict, params, err, data, drive_identifiable, seed)]
+    return [first, *selection.further(design, verdict, params, err, data, seed)]
 
 
 def _closed_loop_note(data: Dataset) -> str | None:
