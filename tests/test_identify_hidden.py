@@ -22,6 +22,7 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import RELAXED_FAILSAFE, daemon_config
 from test_daemon import _daemon, spin_to, tvsctl, wait_status
@@ -32,6 +33,11 @@ HIDDEN = "imbalance:amplitude=2e-4,phase=0.5"
 RPS = 25.0
 ROOT = Path(__file__).resolve().parents[1]
 MAX_GAPS = 50  # filled 1 ms stretches: the README's run 0; --realtime runs at load 20: 9-22
+# rms of ω − ω_ref over the export: 0.039-0.042 rev/s on three clean runs at load 15; one run
+# whose gaps stayed under MAX_GAPS lost the reference (rms 0.54, p99 2.5 rev/s: the speed spread
+# of the identify excitation doubled) and its imbalance statistic was 1.0 (z, own null; 12-29 on
+# the clean runs): stalls, not what the doctor is judged on here
+MAX_TRACKING_RPS = 0.2
 ATTEMPTS = 3  # identify runs aborted because the speed strayed (a stalled daemon), then given up
 
 
@@ -79,11 +85,14 @@ def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_p
         [*cli, "export", run["recording"], "--csv", str(out)], capture_output=True, text=True, timeout=120
     )
     assert exp.returncode == 0, exp.stderr
-    meta = read(out).meta
-    if int(meta["gaps"]) > MAX_GAPS or int(meta["faults"]) > 0:
+    rec = read(out)
+    meta = rec.meta
+    tracking = float(np.sqrt(np.mean((rec.omega - rec.extra["omega_ref"]) ** 2))) / (2 * np.pi)
+    if int(meta["gaps"]) > MAX_GAPS or int(meta["faults"]) > 0 or tracking > MAX_TRACKING_RPS:
         pytest.skip(
             f"the daemon stalled during the run ({meta['gaps']} gaps, {meta['faults']} faults in its "
-            "recording): not the recording this test judges the doctor on; run it without CPU hogs"
+            f"recording, speed off its reference by {tracking:.2f} rev/s rms): not the recording "
+            "this test judges the doctor on; run it without CPU hogs"
         )
     header = next(line for line in out.read_text().splitlines() if not line.startswith("#"))
     assert {"omega_ref", "phi_ref", "u_exc"} <= set(header.split(","))
