@@ -83,6 +83,7 @@ def analyse(case: M.Case, seconds: float, folder: Path) -> dict[str, Any]:
         row["top"] = [[t.cause, round(t.z, 3)] for t in dg.outcome.tested[:3]]
         row["z"] = {t.cause: round(t.z, 3) for t in dg.outcome.tested}
         row["ranked"] = [[s.cause, round(s.z, 3), s.significant] for s in dg.ranked[:4]]
+        row["causes"] = [[c.cause, round(c.z, 3), c.step] for c in dg.causes]  # every cause named
         row["effect"] = {k: v for k, v in dg.effect.items() if isinstance(v, (int, float, str))}
     except DataFileError as exc:  # refused as bad input (exit 2): no cause named
         row["found"] = "refused"
@@ -107,6 +108,9 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     n = len(rows)
     alarms = [r for r in rows if r["found"] != "none"]
     lo, hi = M.clopper_pearson(len(alarms), n) if n else (math.nan, math.nan)
+    # forward selection (tvsd.analysis.selection): a cause past the first on a null is a false
+    # alarm already counted; on an effect case, a cause named besides the hidden one is one too
+    later = [r for r in rows + effects if len(r.get("causes", [])) > 1]
     by: dict[str, int] = {}
     for r in alarms:
         by[r["found"].split(":")[0]] = by.get(r["found"].split(":")[0], 0) + 1
@@ -118,6 +122,8 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "ci95_pct": [round(100 * lo, 2), round(100 * hi, 2)],
         "named": by,
         "alarm_seeds": [r["seed"] for r in alarms],
+        "more_than_one_cause": len(later),
+        "more_than_one_cause_seeds": [[r["seed"], [c[0] for c in r["causes"]]] for r in later],
         **({"effects_named": {k: f"{v[0]}/{v[1]}" for k, v in sorted(named.items())}} if named else {}),
     }
 

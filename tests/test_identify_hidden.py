@@ -4,9 +4,12 @@ doctor must name it from the daemon's own recording, through the command line as
 The hidden effect is an imbalance of 2e-4 N·m at 25 rev/s (the SIL profile's `effects:`, which the
 daemon's recording does not carry): ≈ 6× the matrix's base size for the config's plant (0.5·J),
 where the closed-loop matrix names imbalance in every case from 3× (README, "Closed loop"); offline
-the same excitation named it on 2 of 2 seeds, with `none` on the two null runs. The daemon runs
-with the fail-safe times widened (conftest.RELAXED_FAILSAFE), as every SIL daemon test does, the
-MCU handshake and identify's speed check widened too, and --realtime: this test is about the
+the same excitation named it on 2 of 2 seeds, with `none` on the two null runs. The SIL link's own
+command-to-PWM latency is a second, real cause in this loop, larger than the imbalance (delay z
+158, then imbalance z 29 against the model holding the delay, gates ≈ 3.5): the doctor names
+every cause the data support (tvsd.analysis.selection), and the imbalance must be among them.
+The daemon runs with the fail-safe times widened (conftest.RELAXED_FAILSAFE), as every SIL daemon
+test does, the MCU handshake and identify's speed check widened too, and --realtime: this test is about the
 doctor's answer on a clean recording, not the fail-safe's timing (test_identify_daemon.py and
 test_daemon.py test those). A recording that shows the daemon stalled is skipped, with the reason.
 """
@@ -19,6 +22,7 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import RELAXED_FAILSAFE, daemon_config
 from test_daemon import _daemon, spin_to, tvsctl, wait_status
@@ -29,6 +33,11 @@ HIDDEN = "imbalance:amplitude=2e-4,phase=0.5"
 RPS = 25.0
 ROOT = Path(__file__).resolve().parents[1]
 MAX_GAPS = 50  # filled 1 ms stretches: the README's run 0; --realtime runs at load 20: 9-22
+# rms of ω − ω_ref over the export: 0.039-0.042 rev/s on three clean runs at load 15; one run
+# whose gaps stayed under MAX_GAPS lost the reference (rms 0.54, p99 2.5 rev/s: the speed spread
+# of the identify excitation doubled) and its imbalance statistic was 1.0 (z, own null; 12-29 on
+# the clean runs): stalls, not what the doctor is judged on here
+MAX_TRACKING_RPS = 0.2
 ATTEMPTS = 3  # identify runs aborted because the speed strayed (a stalled daemon), then given up
 
 
@@ -54,13 +63,6 @@ def hidden_daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path,
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=False,
-    reason="issue 12, open: the SIL link's command-to-PWM latency is a real delay in this loop "
-    "(6.1 ms read on the export); since the merged false-alarm and naming rules the doctor names "
-    "it ahead of the hidden imbalance (delay z 136, imbalance z 61; the closedid branch alone "
-    "named imbalance on the same file). One cause per verdict: reporting both is open.",
-)
 def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_path):
     _, sock, _ = hidden_daemon
     spin_to(sock, RPS, timeout=60)
@@ -83,11 +85,14 @@ def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_p
         [*cli, "export", run["recording"], "--csv", str(out)], capture_output=True, text=True, timeout=120
     )
     assert exp.returncode == 0, exp.stderr
-    meta = read(out).meta
-    if int(meta["gaps"]) > MAX_GAPS or int(meta["faults"]) > 0:
+    rec = read(out)
+    meta = rec.meta
+    tracking = float(np.sqrt(np.mean((rec.omega - rec.extra["omega_ref"]) ** 2))) / (2 * np.pi)
+    if int(meta["gaps"]) > MAX_GAPS or int(meta["faults"]) > 0 or tracking > MAX_TRACKING_RPS:
         pytest.skip(
             f"the daemon stalled during the run ({meta['gaps']} gaps, {meta['faults']} faults in its "
-            "recording): not the recording this test judges the doctor on; run it without CPU hogs"
+            f"recording, speed off its reference by {tracking:.2f} rev/s rms): not the recording "
+            "this test judges the doctor on; run it without CPU hogs"
         )
     header = next(line for line in out.read_text().splitlines() if not line.startswith("#"))
     assert {"omega_ref", "phi_ref", "u_exc"} <= set(header.split(","))
@@ -96,6 +101,18 @@ def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_p
     )
     assert ana.returncode == 0, ana.stderr
     verdict = json.loads(ana.stdout)
-    assert verdict["cause"] == "imbalance", {k: verdict[k] for k in ("cause", "effect", "candidates")}
-    # the amplitude within a factor 2 of the hidden one
-    assert 1e-4 < verdict["effect"]["amplitude"] < 4e-4, verdict["effect"]
+    named = {c["cause"]: c for c in verdict["causes"]}
+    shown = {k: verdict[k] for k in ("cause", "causes", "candidates")}
+    assert "imbalance" in named, shown
+    # No other torque is hidden in the plant. The command's path (daemon → serial link → MCU →
+    # H-bridge) is the SIL loop's own and may show too: its latency (a serial frame and the MCU's
+    # tick, 5.6-6.7 ms read on three exports) is named first in each, and one export named a
+    # clip at 11.28 V after it (z 15 against the model holding the delay; the step-1 statistic
+    # was already 18 > 3.6, so it is in the loop, not made by the selection; its origin is open).
+    assert not set(named) & {"cogging", "resonance", "friction_asymmetry", "drift"}, shown
+    if "delay" in named:
+        assert 1e-3 < named["delay"]["effect"]["delay_s"] < 20e-3, shown
+    # The amplitude within 4 of its own standard errors (the vibration's share, and J's), a miss
+    # by chance ≈ 6e-5: on a 20 s export ±2.3e-5 N·m, so ±45 % (the factor 2 before was ±100 %/−50 %).
+    imb = named["imbalance"]["effect"]
+    assert abs(imb["amplitude"] - 2e-4) < 4 * imb["amplitude_se"], imb

@@ -178,6 +178,12 @@ def _options(prep: Prepared, rotary: bool, offset: bool = False) -> dict[str, li
     return opts
 
 
+def options(prep: Prepared, rotary: bool, offset: bool = False) -> dict[str, list[Option]]:
+    """Every cause's blocks on `prep` (tvsd.analysis.selection rebuilds the command's blocks on
+    a command a named map transformed)."""
+    return _options(prep, rotary, offset)
+
+
 def resonance_columns(prep: Prepared, freq: float) -> np.ndarray:
     t = prep.data.t
     return np.column_stack(

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from tvsd.analysis import absorber, instrument, sense
+from tvsd.analysis import absorber, instrument, selection, sense
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis.dataset import Dataset
@@ -74,6 +74,7 @@ class Diagnosis:
     sim: dict[str, np.ndarray] = field(default_factory=dict)
     heldout_file: bool = False
     v0_config: float = math.nan  # the config's Stribeck speed (the IDIM-LS reference fit uses it)
+    causes: list[selection.Named] = field(default_factory=list)  # every cause named, `cause` first
 
     @property
     def gain_pct(self) -> float:
@@ -233,6 +234,8 @@ def _diagnose(
             "q": noise.peak_q,
         }
     ranked.sort(key=lambda s: (s.cause != cause, not s.significant, -s.z))
+    causes = _causes(design, out, verdict, cause, effect, ranked, params, err, data, seed, say)
+    effect = causes[0].effect if causes else effect  # with its amplitude's standard error
     say("simulating baseline and extension on the held-out data")
     from tvsd.analysis.verdict import heldout_speed
 
@@ -255,7 +258,44 @@ def _diagnose(
         sim,
         heldout is not None,
         v0,
+        causes,
     )
+
+
+def _causes(
+    design: D.Design,
+    out: C.Outcome,
+    verdict: Any,
+    cause: str,
+    effect: dict[str, Any],
+    ranked: list[Scored],
+    params: dict[str, float],
+    err: dict[str, float],
+    data: Dataset,
+    seed: int,
+    say: Progress,
+) -> list[selection.Named]:
+    """The ranked list: empty for `none`; the top cause, then (when the decision named it) every
+    further cause forward selection finds (tvsd.analysis.selection)."""
+    if cause == "none":
+        return []
+    top = next((s for s in ranked if s.cause == cause), None)
+    decided = cause == verdict.cause and cause != "model_mismatch"
+    gain = selection.cv_gain(design, out, verdict) if decided else math.nan
+    se = selection.amplitude_se(design, out, verdict, params["J"], err["J"]) if decided else {}
+    first = selection.Named(
+        cause,
+        {**effect, **se},
+        top.z if top is not None else math.nan,
+        out.threshold if decided else math.nan,  # a spectral cause has its own test (noise.py)
+        top.p if top is not None else math.nan,
+        gain,
+        1,
+    )
+    if not decided:
+        return [first]
+    say("testing the other causes against the model extended by the named one")
+    return [first, *selection.further(design, verdict, params, err, data, seed)]
 
 
 def _closed_loop_note(data: Dataset) -> str | None:

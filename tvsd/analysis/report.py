@@ -214,6 +214,7 @@ def _markdown(dg: Diagnosis, s: dict[str, Any]) -> str:
             f"| {c['cause']}{note} | {c['score']:.1f} | {c['p_value']:.3g} | "
             f"{'yes' if c['significant'] else 'no'} | {params} |"
         )
+    lines += _causes_markdown(s["causes"])
     lines += [
         "",
         "![candidates](candidates.png)",
@@ -246,3 +247,29 @@ def _markdown(dg: Diagnosis, s: dict[str, Any]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _causes_markdown(causes: list[dict[str, Any]]) -> list[str]:
+    """Every cause named, best first (tvsd.analysis.selection): none beyond the verdict → nothing."""
+    if len(causes) < 2:
+        return []
+    lines = [
+        "",
+        "### Every cause named",
+        "",
+        "After a cause is named it joins the baseline, and the other candidates are tested again "
+        "by the same rule against that extended model (its own noise model and bootstrap null): "
+        "each line below passed its own step's gate.",
+        "",
+        "| step | cause | z | gate | out-of-sample gain (noise variances) | parameters |",
+        "|---|---|---|---|---|---|",
+    ]
+    for c in causes:
+        params = ", ".join(
+            f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in c["effect"].items()
+        )
+        gate = f"{c['threshold']:.2f}" if math.isfinite(c["threshold"]) else "own test"
+        lines.append(
+            f"| {c['step']} | {c['cause']} | {c['score']:.1f} | {gate} | {c['cv_gain']:.1f} | {params} |"
+        )
+    return lines

@@ -53,9 +53,9 @@ def sentence(dg: Diagnosis) -> str:
 
 
 KEEP = {
-    "imbalance": ("order", "amplitude", "phase"),
-    "cogging": ("order", "amplitude", "phase"),
-    "resonance": ("frequency_hz", "amplitude", "phase"),
+    "imbalance": ("order", "amplitude", "phase", "amplitude_se"),
+    "cogging": ("order", "amplitude", "phase", "amplitude_se"),
+    "resonance": ("frequency_hz", "amplitude", "phase", "amplitude_se"),
     "saturation": ("u_max",),
     "deadzone": ("u0", "u0_interval"),
     "delay": ("delay_s",),
@@ -84,6 +84,19 @@ def as_json(dg: Diagnosis, report: str | None = None) -> dict[str, Any]:
     out: dict[str, Any] = {
         "cause": dg.cause,
         "effect": _effect_json(dg.cause, dg.effect),
+        # every cause named, best first: forward selection (tvsd.analysis.selection); [] for none
+        "causes": [
+            {
+                "cause": c.cause,
+                "effect": _effect_json(c.cause, c.effect),
+                "score": float(c.z),
+                "threshold": float(c.threshold),
+                "p_value": float(c.p),
+                "cv_gain": float(c.cv_gain),
+                "step": c.step,
+            }
+            for c in dg.causes
+        ],
         "candidates": [
             {
                 "cause": s.cause,

@@ -6,8 +6,9 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
-from tvsd.cli.output import print_json, print_table
+from tvsd.cli.output import fmt, print_json, print_table
 from tvsd.config import load_config
 from tvsd.errors import EXIT_OK
 
@@ -68,6 +69,11 @@ def _run(args: argparse.Namespace) -> int:
         return EXIT_OK
     print(summary["summary"])
     print()
+    if len(summary["causes"]) > 1:
+        print("causes named, best first (each tested against the model holding those above it):")
+        for c in summary["causes"]:
+            print(f"  {c['step']}. {cause_line(c)}")
+        print()
     print_table(
         [
             (c["cause"], f"{c['score']:.1f}", f"{c['p_value']:.3g}", "yes" if c["significant"] else "no")
@@ -85,3 +91,12 @@ def _run(args: argparse.Namespace) -> int:
     if args.report:
         print(f"report: {summary['report']}")
     return EXIT_OK
+
+
+def cause_line(c: dict[str, Any]) -> str:
+    """One named cause: its name, parameters, statistic against its step's gate, and gain."""
+    params = ", ".join(f"{k}={fmt(v)}" for k, v in c["effect"].items())
+    return (
+        f"{c['cause']} ({params}): z {fmt(c['score'])} > {fmt(c['threshold'])}, "
+        f"out-of-sample gain {fmt(c['cv_gain'])} noise variances"
+    )
