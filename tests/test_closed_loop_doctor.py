@@ -159,3 +159,45 @@ def test_the_identify_profile_with_a_reversal_turns_the_shaft_backwards_and_back
     assert abs(np.mean(rps[-500:]) - 10.0) < 1.0  # back at the setpoint by the end
     assert np.count_nonzero((rec.u < 0) & (rec.omega > 0)) > 200  # braking: u against ω
     assert np.count_nonzero((rec.u > 0) & (rec.omega < 0)) > 100
+
+
+@pytest.mark.slow
+def test_a_closed_loop_case_whose_spin_up_fold_was_unpredictable_is_named(tmp_path: Path) -> None:
+    """The out-of-sample check predicts each fifth of the record from fits to the other four; in
+    closed loop the first fifth holds the spin-up, and the other four (scanning at one speed) do
+    not determine the model (Coulomb friction and the misfit absorber's shapes are one constant
+    there: rank-deficient, condition number 1.8e22), so its prediction of the spin-up was
+    arbitrary (±1e9 noise units) and decided the check. Such a fold is now left out
+    (calibrate.heldout_gain). On the closed-loop plan's seed 0 (3× and 10×, 60 cases) this named
+    6 cases more (resonance, cogging 2, imbalance, dead zone, saturation) and changed nothing
+    else; this one (resonance 10×, σv 0.81, plan seed 5) was `none` before (`ls0`), its z 44 far
+    above the threshold. Deterministic (fixed seeds): the old rule's `none` shows the test fails
+    on it."""
+    import json
+
+    from tvsd.analysis import matrix_closed as MC
+
+    case = next(c for c in MC.plan(n_null=6, reps=3, sizes=(3.0, 10.0), seed=0) if c.seed == 5)
+    assert (case.cause, case.size) == ("resonance", 10.0)
+    out = tmp_path / "one.jsonl"
+    MC.run(out, [case], ("ls", "ls0"))
+    row = json.loads(out.read_text())
+    assert (row["ls"], row["ls0"]) == ("resonance", "none"), row
+
+
+def test_exposure_states_what_a_scanning_recording_shows_of_a_command_side_effect() -> None:
+    """tvsd.analysis.exposure on a synthetic one-direction scan (u = 3 V ± 0.5 V PRBS, ω > 0):
+    a dead zone of 0.4 V below every command acts nowhere the test can tell it from Coulomb
+    friction (share 0); friction asymmetry has no reverse motion to show on (share 0); a clip at
+    3.4 V acts on the PRBS's upper half (share ≈ 0.5 by construction)."""
+    from tvsd.analysis.exposure import exposure
+
+    g = np.random.default_rng(0)
+    u = 3.0 + 0.5 * np.sign(g.standard_normal(4000))
+    w = 60.0 + g.standard_normal(4000)
+    plant = load_config().plant
+    assert exposure("deadzone:u0=0.4", u, w, plant, 0.3, 1e-3)["share"] == 0.0
+    assert exposure("friction_asymmetry:ratio=1.3", u, w, plant, 0.3, 1e-3)["share"] == 0.0
+    clip = exposure("saturation:u_max=3.4", u, w, plant, 0.3, 1e-3)
+    assert 0.45 < clip["share"] < 0.55 and clip["units"] > 0
+    assert exposure(None, u, w, plant, 0.3, 1e-3) == {}
