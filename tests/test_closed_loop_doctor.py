@@ -201,3 +201,23 @@ def test_exposure_states_what_a_scanning_recording_shows_of_a_command_side_effec
     clip = exposure("saturation:u_max=3.4", u, w, plant, 0.3, 1e-3)
     assert 0.45 < clip["share"] < 0.55 and clip["units"] > 0
     assert exposure(None, u, w, plant, 0.3, 1e-3) == {}
+
+
+@pytest.mark.slow
+def test_a_closed_loop_mode_the_law_answers_is_scanned_for(tmp_path: Path) -> None:
+    """The line scan leaves out the frequencies where the excitation has lines of its own; in
+    closed loop those were taken from the command, which also holds the law's answer to every
+    disturbance — a structural mode's line among them — so a 59.8 Hz mode (its ordinate 1.9e4
+    times the local level) was never scanned: `none` at z 1.3. The lines are now the speed
+    reference's (calibrate._excitation_rows). Closed-loop plan seed 0, case 45 (resonance 10×,
+    σv 0.08, 4 rev/s): `ls1` (the command's lines) names nothing, `ls` the mode; deterministic."""
+    import json
+
+    from tvsd.analysis import matrix_closed as MC
+
+    case = next(c for c in MC.plan(n_null=6, reps=3, sizes=(3.0, 10.0), seed=0) if c.seed == 45)
+    assert (case.cause, case.size) == ("resonance", 10.0)
+    out = tmp_path / "one.jsonl"
+    MC.run(out, [case], ("ls", "ls1"))
+    row = json.loads(out.read_text())
+    assert (row["ls"], row["ls1"]) == ("resonance", "none"), row

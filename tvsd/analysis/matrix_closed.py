@@ -9,8 +9,9 @@ next repetition) so a partial batch is balanced.
 
 Variants: `ls` (least squares, the doctor's default), `iv` (two-stage least squares with the
 reference and, when recorded, identify's voltage excitation `u_exc` as instruments),
-`iv_ref` (the reference alone, as before u_exc was recorded), `ls0` (least squares with the
-out-of-sample check as it was before undetermined folds were skipped: calibrate.heldout_gain).
+`iv_ref` (the reference alone, as before u_exc was recorded), `ls0` (least squares as before this
+branch: every fold in the out-of-sample check, calibrate.heldout_gain; the line scan off the
+command's lines), `ls1` (the folds' rule on, the lines still the command's).
 
     python -m tvsd.analysis.matrix_closed OUT.jsonl [--reps 15] [--nulls 30] [--sizes 3,10]
         [--seed 0] [--worker 0 --workers 1] [--variants ls,iv] [--reversal]
@@ -36,7 +37,7 @@ from tvsd.analysis import matrix as M
 from tvsd.causes import Effect, parse_effect
 from tvsd.config import Config, load_config
 
-VARIANTS = ("ls", "ls0", "iv", "iv_ref")
+VARIANTS = ("ls", "ls0", "ls1", "iv", "iv_ref")
 
 
 def plan(n_null: int, reps: int, sizes: tuple[float, ...], seed: int) -> list[M.Case]:
@@ -99,8 +100,9 @@ def analyse(path: Path, cfg: Config, variant: str) -> tuple[str, float, dict[str
         from tvsd.analysis import calibrate
 
         calibrate.SKIP_UNDETERMINED_FOLDS = variant != "ls0"
-        dg = diagnose(data, cfg.plant.v0, iv=variant not in ("ls", "ls0"))
-        calibrate.SKIP_UNDETERMINED_FOLDS = True
+        calibrate.LINES_OF_REFERENCE = variant not in ("ls0", "ls1")
+        dg = diagnose(data, cfg.plant.v0, iv=variant not in ("ls", "ls0", "ls1"))
+        calibrate.SKIP_UNDETERMINED_FOLDS = calibrate.LINES_OF_REFERENCE = True
         found = dg.cause
         why = {
             "z": {s.cause: round(float(s.z), 3) for s in dg.ranked},
