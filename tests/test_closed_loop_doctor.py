@@ -243,3 +243,27 @@ def test_a_closed_loop_drift_is_confirmed_by_the_windows_resisting_torque(tmp_pa
     MC.run(out, [case], ("ls",))
     row = json.loads(out.read_text())
     assert row["ls"] == "drift", row
+
+
+def test_the_confusion_table_counts_what_was_named_instead_and_states_the_limit() -> None:
+    """tvsd.analysis.confusion on hand-made rows: per cause × size × noise-unit bin the counts,
+    the true cause's z where it was missed, the confusion matrix, and the limit as the lowest bin
+    from which every bin is named ≥ 90 % (here from 4 units: 3/3 there, 0/1 below)."""
+    from tvsd.analysis.confusion import limit, table
+
+    def row(cause: str, size: float, units: float, found: str, z: float) -> dict[str, object]:
+        why = {"z": {cause: z}, "threshold": 3.5, "reason": None}
+        return {"cause": cause, "size": size, "noise_units": units, "ls": found, "ls_why": why}
+
+    rows = [
+        row("delay", 3.0, 1.5, "none", 2.0),
+        row("delay", 3.0, 5.0, "delay", 40.0),
+        row("delay", 10.0, 9.0, "delay", 80.0),
+        row("delay", 10.0, 20.0, "delay", 90.0),
+        row("none", 0.0, math.nan, "resonance", 0.0),
+    ]
+    text = table(rows, "ls")
+    assert "delay                   3x         1-2   1     0      -  none 1  (z 2.0/3.5)" in text
+    assert limit(rows[:4], "delay", "ls", 0.9).startswith("from 4u: 3/3")
+    last = text.splitlines()[-1].split()
+    assert last[0] == "delay" and [int(x) for x in last[1:]] == [3, 1, 0]  # columns: delay, none, resonance
