@@ -97,10 +97,11 @@ def test_the_identify_profile_records_its_prbs_and_it_instruments_the_command(tm
 
 # Closed-loop subset (seed 0 of the matrix's closed-loop family, 30 s each, ≈ 5 s per case at load
 # 2, ≈ 70 s at load 30): two nulls and one case per cause at 30× its base. The seeds are fixed, so
-# the outcome is deterministic; what it stands for, measured on the matrix (README, "Closed
-# loop"): imbalance, cogging and delay at 30× were named in 2 of 2 cases each (and at 10×), and a
-# null is a false alarm at 22 % (95 % CI 11.5–36 %), so a fresh pair of null seeds passes with
-# probability ≈ 0.61; these two (and nulls 0–9 of the matrix's closed draw) are `none`.
+# the outcome is deterministic; what it stands for, measured on the matrix (README, "Closed loop:
+# what is named instead"): imbalance, cogging and delay were named in 6 of 6 cases each at 3× and
+# 10× (95 % lower bound 54 %), and 1 of 38 closed-loop nulls was a false alarm (2.6 %, 95 % CI
+# 0.07–13.8 %), so a fresh pair of null seeds passes with probability ≈ 0.95 (≥ 0.74 at the CI's
+# top); these two (and nulls 0–9 of the matrix's closed draw) are `none`.
 SUBSET = ("none", "none", "imbalance", "cogging", "delay")
 
 
@@ -159,3 +160,110 @@ def test_the_identify_profile_with_a_reversal_turns_the_shaft_backwards_and_back
     assert abs(np.mean(rps[-500:]) - 10.0) < 1.0  # back at the setpoint by the end
     assert np.count_nonzero((rec.u < 0) & (rec.omega > 0)) > 200  # braking: u against ω
     assert np.count_nonzero((rec.u > 0) & (rec.omega < 0)) > 100
+
+
+@pytest.mark.slow
+def test_a_closed_loop_case_whose_spin_up_fold_was_unpredictable_is_named(tmp_path: Path) -> None:
+    """The out-of-sample check predicts each fifth of the record from fits to the other four; in
+    closed loop the first fifth holds the spin-up, and the other four (scanning at one speed) do
+    not determine the model (Coulomb friction and the misfit absorber's shapes are one constant
+    there: rank-deficient, condition number 1.8e22), so its prediction of the spin-up was
+    arbitrary (±1e9 noise units) and decided the check. Such a fold is now left out
+    (calibrate.heldout_gain). On the closed-loop plan's seed 0 (3× and 10×, 60 cases) this named
+    6 cases more (resonance, cogging 2, imbalance, dead zone, saturation) and changed nothing
+    else; this one (resonance 10×, σv 0.81, plan seed 5) was `none` before (`ls0`), its z 44 far
+    above the threshold. Deterministic (fixed seeds): the old rule's `none` shows the test fails
+    on it."""
+    import json
+
+    from tvsd.analysis import matrix_closed as MC
+
+    case = next(c for c in MC.plan(n_null=6, reps=3, sizes=(3.0, 10.0), seed=0) if c.seed == 5)
+    assert (case.cause, case.size) == ("resonance", 10.0)
+    out = tmp_path / "one.jsonl"
+    MC.run(out, [case], ("ls", "ls0"))
+    row = json.loads(out.read_text())
+    assert (row["ls"], row["ls0"]) == ("resonance", "none"), row
+
+
+def test_exposure_states_what_a_scanning_recording_shows_of_a_command_side_effect() -> None:
+    """tvsd.analysis.exposure on a synthetic one-direction scan (u = 3 V ± 0.5 V PRBS, ω > 0):
+    a dead zone of 0.4 V below every command acts nowhere the test can tell it from Coulomb
+    friction (share 0); friction asymmetry has no reverse motion to show on (share 0); a clip at
+    3.4 V acts on the PRBS's upper half (share ≈ 0.5 by construction)."""
+    from tvsd.analysis.exposure import exposure
+
+    g = np.random.default_rng(0)
+    u = 3.0 + 0.5 * np.sign(g.standard_normal(4000))
+    w = 60.0 + g.standard_normal(4000)
+    plant = load_config().plant
+    assert exposure("deadzone:u0=0.4", u, w, plant, 0.3, 1e-3)["share"] == 0.0
+    assert exposure("friction_asymmetry:ratio=1.3", u, w, plant, 0.3, 1e-3)["share"] == 0.0
+    clip = exposure("saturation:u_max=3.4", u, w, plant, 0.3, 1e-3)
+    assert 0.45 < clip["share"] < 0.55 and clip["units"] > 0
+    assert exposure(None, u, w, plant, 0.3, 1e-3) == {}
+
+
+@pytest.mark.slow
+def test_a_closed_loop_mode_the_law_answers_is_scanned_for(tmp_path: Path) -> None:
+    """The line scan leaves out the frequencies where the excitation has lines of its own; in
+    closed loop those were taken from the command, which also holds the law's answer to every
+    disturbance — a structural mode's line among them — so a 59.8 Hz mode (its ordinate 1.9e4
+    times the local level) was never scanned: `none` at z 1.3. The lines are now the speed
+    reference's (calibrate._excitation_rows). Closed-loop plan seed 0, case 45 (resonance 10×,
+    σv 0.08, 4 rev/s): `ls1` (the command's lines) names nothing, `ls` the mode; deterministic."""
+    import json
+
+    from tvsd.analysis import matrix_closed as MC
+
+    case = next(c for c in MC.plan(n_null=6, reps=3, sizes=(3.0, 10.0), seed=0) if c.seed == 45)
+    assert (case.cause, case.size) == ("resonance", 10.0)
+    out = tmp_path / "one.jsonl"
+    MC.run(out, [case], ("ls", "ls1"))
+    row = json.loads(out.read_text())
+    assert (row["ls"], row["ls1"]) == ("resonance", "none"), row
+
+
+@pytest.mark.slow
+def test_a_closed_loop_drift_is_confirmed_by_the_windows_resisting_torque(tmp_path: Path) -> None:
+    """Turning one way (scanning), damping, Coulomb, Stribeck and the absorber's columns are all
+    near constant, so each time window's refit splits the resisting torque among them at random
+    (the Coulomb coefficient went 7.7, −415, 2914, 2347, 2866 over five windows) and the drift's
+    window check failed at z 107; the windows' resisting torque, projected on the parameter's
+    column, trends (−70, −81, −82, −86, −84) and the drift's size is relative to it (verdict).
+    Closed-loop plan (seed 0, no nulls, 30×/100×) case 14: kv +15 %, 11 noise units, σv 0.81;
+    `none` before, now `drift` with a relative change of 5–30 % (measured 11 %). Deterministic."""
+    import json
+
+    from tvsd.analysis import matrix_closed as MC
+
+    case = next(c for c in MC.plan(n_null=0, reps=3, sizes=(30.0, 100.0), seed=0) if c.seed == 14)
+    assert case.cause == "drift" and case.effect == "drift:parameter=kv,relative_change=0.15"
+    out = tmp_path / "one.jsonl"
+    MC.run(out, [case], ("ls",))
+    row = json.loads(out.read_text())
+    assert row["ls"] == "drift", row
+
+
+def test_the_confusion_table_counts_what_was_named_instead_and_states_the_limit() -> None:
+    """tvsd.analysis.confusion on hand-made rows: per cause × size × noise-unit bin the counts,
+    the true cause's z where it was missed, the confusion matrix, and the limit as the lowest bin
+    from which every bin is named ≥ 90 % (here from 4 units: 3/3 there, 0/1 below)."""
+    from tvsd.analysis.confusion import limit, table
+
+    def row(cause: str, size: float, units: float, found: str, z: float) -> dict[str, object]:
+        why = {"z": {cause: z}, "threshold": 3.5, "reason": None}
+        return {"cause": cause, "size": size, "noise_units": units, "ls": found, "ls_why": why}
+
+    rows = [
+        row("delay", 3.0, 1.5, "none", 2.0),
+        row("delay", 3.0, 5.0, "delay", 40.0),
+        row("delay", 10.0, 9.0, "delay", 80.0),
+        row("delay", 10.0, 20.0, "delay", 90.0),
+        row("none", 0.0, math.nan, "resonance", 0.0),
+    ]
+    text = table(rows, "ls")
+    assert "delay                   3x         1-2   1     0      -  none 1  (z 2.0/3.5)" in text
+    assert limit(rows[:4], "delay", "ls", 0.9).startswith("from 4u: 3/3")
+    last = text.splitlines()[-1].split()
+    assert last[0] == "delay" and [int(x) for x in last[1:]] == [3, 1, 0]  # columns: delay, none, resonance

@@ -189,7 +189,7 @@ def cases(
             dt = 1.0 / cfg.control.rate_hz
             text, torque = _effects(plant, cfg.drive.u_max_v, g, command, dt)[cause](m)
         units = torque / (plant.J * sigma) if math.isfinite(torque) else math.nan
-        if cause == "colored_noise" and profile in OPEN_PROFILES:
+        if cause == "colored_noise":
             sigma = coloured_sigma(sigma, m * COLOUR_TAU_S)
         p = {k2: getattr(plant, k2) for k2 in ("J", "kv", "R", "kM", "tau_c")}
         rps = scan_rps(plant, cfg.drive.u_max_v) if profile in CLOSED_PROFILES else 0.0
@@ -214,6 +214,10 @@ def run_case(case: Case, seconds: float, tmp: Path, iv: bool = False) -> dict[st
     from tvsd.sim.record import record
 
     cfg = case_config(load_config(), case)
+    if case.profile in CLOSED_PROFILES:  # a clip sized on the case's own command (matrix_closed)
+        from tvsd.analysis.matrix_closed import sized
+
+        case = sized(case, cfg, tmp, seconds)
     effects: tuple[Effect, ...] = (parse_effect(case.effect),) if case.effect else ()
     path = tmp / f"case{case.seed}.csv"
     record(cfg, path, case.profile, seconds, effects, case.seed, rps=case.rps or 20.0)

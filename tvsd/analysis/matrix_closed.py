@@ -9,17 +9,21 @@ next repetition) so a partial batch is balanced.
 
 Variants: `ls` (least squares, the doctor's default), `iv` (two-stage least squares with the
 reference and, when recorded, identify's voltage excitation `u_exc` as instruments),
-`iv_ref` (the reference alone, as before u_exc was recorded).
+`iv_ref` (the reference alone, as before u_exc was recorded), `ls0` (least squares as before this
+branch: every fold in the out-of-sample check, calibrate.heldout_gain; the line scan off the
+command's lines), `ls1` (the folds' rule on, the lines still the command's).
 
     python -m tvsd.analysis.matrix_closed OUT.jsonl [--reps 15] [--nulls 30] [--sizes 3,10]
         [--seed 0] [--worker 0 --workers 1] [--variants ls,iv] [--reversal]
     python -m tvsd.analysis.matrix_closed 'OUT*.jsonl' --summary
+    python -m tvsd.analysis.matrix_closed 'OUT*.jsonl' --confusion [--variant ls]
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import glob
 import json
 import math
 import tempfile
@@ -33,7 +37,7 @@ from tvsd.analysis import matrix as M
 from tvsd.causes import Effect, parse_effect
 from tvsd.config import Config, load_config
 
-VARIANTS = ("ls", "iv", "iv_ref")
+VARIANTS = ("ls", "ls0", "ls1", "iv", "iv_ref")
 
 
 def plan(n_null: int, reps: int, sizes: tuple[float, ...], seed: int) -> list[M.Case]:
@@ -59,6 +63,8 @@ def plan(n_null: int, reps: int, sizes: tuple[float, ...], seed: int) -> list[M.
         if cause != "none":
             text, torque = M._effects(plant, cfg.drive.u_max_v, g)[cause](m)
         units = torque / (plant.J * sigma) if math.isfinite(torque) else math.nan
+        if cause == "colored_noise":  # the null's spectrum below the corner (matrix.coloured_sigma)
+            sigma = M.coloured_sigma(sigma, m * M.COLOUR_TAU_S)
         p = {k2: getattr(plant, k2) for k2 in ("J", "kv", "R", "kM", "tau_c")}
         rps = M.scan_rps(plant, cfg.drive.u_max_v)
         out.append(M.Case(10_000 * seed + k, cause, m, units, text, "identify", sigma, p, rps))
@@ -79,19 +85,64 @@ def case_config(case: M.Case, identify: dict[str, Any] | None = None) -> Config:
     return cfg
 
 
-def analyse(path: Path, cfg: Config, variant: str) -> tuple[str, float]:
+def analyse(path: Path, cfg: Config, variant: str) -> tuple[str, float, dict[str, Any]]:
+    """What the variant named, its time, and why (each cause's z, the threshold, a mismatch's
+    reason): the confusion table's raw material."""
     from tvsd.analysis.dataset import load
     from tvsd.analysis.doctor import diagnose
 
     t0 = time.perf_counter()
+    why: dict[str, Any] = {}
     try:
         data = load(path, cfg)
         if variant == "iv_ref":
             data = dataclasses.replace(data, refs={k: v for k, v in data.refs.items() if k != "u_exc"})
-        found = diagnose(data, cfg.plant.v0, iv=variant != "ls").cause
+        from tvsd.analysis import calibrate
+
+        calibrate.SKIP_UNDETERMINED_FOLDS = variant != "ls0"
+        calibrate.LINES_OF_REFERENCE = variant not in ("ls0", "ls1")
+        dg = diagnose(data, cfg.plant.v0, iv=variant not in ("ls", "ls0", "ls1"))
+        calibrate.SKIP_UNDETERMINED_FOLDS = calibrate.LINES_OF_REFERENCE = True
+        found = dg.cause
+        why = {
+            "z": {s.cause: round(float(s.z), 3) for s in dg.ranked},
+            "threshold": round(float(dg.outcome.threshold), 3),
+            "reason": dg.reason,
+        }
     except Exception as exc:  # a bad case is a result too (reported, not hidden)
         found = f"error: {type(exc).__name__}: {exc}"[:160]
-    return found, time.perf_counter() - t0
+    return found, time.perf_counter() - t0, why
+
+
+def sized(case: M.Case, cfg: Config, tmp: Path, seconds: float) -> M.Case:
+    """A closed-loop saturation set where the command is: the case recorded without it (same
+    seed: same noise and excitation) gives the command, and u_max sits m × 1 % below its 99 %
+    quantile, as in open loop (matrix.saturation_size). From the drive limit, 0.97–0.90 ×
+    u_max lay above every command of a scanning plant held with ≤ 40 % of the drive."""
+    if case.cause != "saturation":
+        return case
+    from tvsd.sim.record import record
+
+    pilot = tmp / f"pilot{case.seed}.csv"
+    record(cfg, pilot, "identify", seconds, (), case.seed, rps=case.rps)
+    from tvsd.analysis.dataset import load
+
+    u = load(pilot, cfg).u
+    pilot.unlink()
+    u_max, excess = M.saturation_size(u, case.size)
+    units = excess * cfg.plant.kM * cfg.plant.ku / cfg.plant.R / (cfg.plant.J * case.sigma_v)
+    return dataclasses.replace(case, effect=f"saturation:u_max={u_max:.6g}", noise_units=units)
+
+
+def seen(path: Path, case: M.Case, cfg: Config) -> dict[str, float]:
+    """tvsd.analysis.exposure's measures of the case's effect on the recording the doctor got."""
+    from tvsd.analysis.dataset import load
+    from tvsd.analysis.exposure import exposure
+
+    data = load(path, cfg)
+    omega = data.speed if data.speed is not None else np.gradient(data.position, data.t)
+    dt = 1.0 / data.sample_rate_hz
+    return exposure(case.effect, data.u, omega, cfg.plant, case.sigma_v, dt)
 
 
 def run(
@@ -109,13 +160,15 @@ def run(
             if case.seed in done:
                 continue
             cfg = case_config(case, identify)
+            case = sized(case, cfg, Path(tmp), seconds)
             effects: tuple[Effect, ...] = (parse_effect(case.effect),) if case.effect else ()
             path = Path(tmp) / f"case{case.seed}.csv"
             t0 = time.perf_counter()
             record(cfg, path, "identify", seconds, effects, case.seed, rps=case.rps)
             row: dict[str, Any] = {**dataclasses.asdict(case), "record_s": time.perf_counter() - t0}
+            row["seen"] = seen(path, case, cfg)
             for v in variants:
-                row[v], row[f"{v}_s"] = analyse(path, cfg, v)
+                row[v], row[f"{v}_s"], row[f"{v}_why"] = analyse(path, cfg, v)
             with out.open("a") as f:
                 f.write(json.dumps(row) + "\n")
             path.unlink()
@@ -147,10 +200,19 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=0, help=rounds_help)
     ap.add_argument("--identify", default="", help="identify: overrides as JSON")
     ap.add_argument("--summary", action="store_true")
+    ap.add_argument(
+        "--confusion", action="store_true", help="print the confusion table (tvsd.analysis.confusion)"
+    )
+    ap.add_argument("--variant", default="ls", help="--confusion: which variant's answers")
     a = ap.parse_args()
-    if a.summary:  # OUT may be a glob (the workers' files together)
-        files = sorted(Path().glob(str(a.out))) if any(ch in str(a.out) for ch in "*?[") else [a.out]
+    if a.summary or a.confusion:  # OUT may be a glob (the workers' files together)
+        files = [Path(f) for f in sorted(glob.glob(str(a.out)))] or [a.out]
         rows = [json.loads(line) for f in files for line in f.read_text().splitlines()]
+        if a.confusion:
+            from tvsd.analysis.confusion import table
+
+            print(table(rows, a.variant))
+            return
         variants = [v for v in VARIANTS if any(v in r for r in rows)]
         print(json.dumps({v: summary(rows, v) for v in variants}, indent=1, default=str))
         return

@@ -1,0 +1,72 @@
+"""What a recording lets the doctor see of a hidden effect, measured on the recorded signals.
+
+A closed-loop case's size set from the drive limit says little: the law holds the command where
+the scanning speed needs it, so a clip at 0.9 × u_max can lie above every command and a dead
+zone below every one (then it is a constant torque, a Coulomb level, in one direction of
+rotation). These measures, taken on the recording itself (or on the same case recorded without
+the effect: the pilot), state the size in units the test can see:
+
+- saturation: the share of samples whose |u| exceeds u_max, and the rms excess in noise units;
+- dead zone: the share of moving samples where the command is inside the zone, or pushes
+  against the motion (there a dead zone and Coulomb friction differ: README, dead-zone width);
+- friction asymmetry: the share of moving samples in the less-used direction;
+- delay: b_u·rms(u(t) − u(t − τ)) in noise units (matrix.delay_torque) on the recorded command;
+- drift: the term's change over the run in noise units (R: Δ·b_u·rms u, kv: Δ·kv·rms ω,
+  friction: Δ·τc), as the open-loop table states it.
+
+Noise units are torque over J·σv (tvsd.analysis.matrix).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from tvsd.analysis.matrix import delay_torque
+from tvsd.causes import parse_effect
+
+MOVING_RAD_S = 0.5  # |ω| above this: the shaft moves (friction acts by direction)
+
+
+def exposure(
+    effect_text: str | None, u: np.ndarray, omega: np.ndarray, plant: Any, sigma_v: float, dt: float
+) -> dict[str, float]:
+    """The measures above for one effect on recorded command `u` (V) and speed `omega` (rad/s);
+    `plant` carries J, kv, R, kM, ku, tau_c."""
+    if not effect_text:
+        return {}
+    e = parse_effect(effect_text)
+    p = e.params
+    b_u = plant.kM * plant.ku / plant.R
+    jsv = plant.J * sigma_v
+    moving = np.abs(omega) > MOVING_RAD_S
+    mag = np.abs(u)
+    out: dict[str, float] = {}
+    if e.name == "saturation":
+        u_max = float(p["u_max"])
+        out["share"] = float(np.mean(mag > u_max))
+        out["units"] = b_u * float(np.sqrt(np.mean(np.maximum(mag - u_max, 0.0) ** 2))) / jsv
+    elif e.name == "deadzone":
+        u0 = float(p["u0"])
+        against = moving & (np.sign(u) != np.sign(omega))
+        inside = moving & (mag < u0)
+        out["share"] = float(np.mean(inside | against))
+        out["units"] = u0 * b_u / jsv
+    elif e.name == "friction_asymmetry":
+        pos = float(np.mean(moving & (omega > 0)))
+        neg = float(np.mean(moving & (omega < 0)))
+        out["share"] = min(pos, neg)
+        out["units"] = abs(float(p["ratio"]) - 1.0) * plant.tau_c / jsv
+    elif e.name == "delay":
+        out["units"] = delay_torque(u, float(p["delay_s"]), b_u, dt) / jsv
+    elif e.name == "drift":
+        rel = float(p["relative_change"])
+        term = {
+            "R": b_u * float(np.sqrt(np.mean(u**2))),
+            "kv": plant.kv * float(np.sqrt(np.mean(omega**2))),
+            "friction": plant.tau_c,
+        }[str(p["parameter"])]
+        out["units"] = rel * term / jsv
+    return {k: (round(v, 5) if math.isfinite(v) else v) for k, v in out.items()}
