@@ -53,12 +53,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from tvsd.causes import parse_effects
 from tvsd.config import Config, VibrationConfig
 from tvsd.control.setup import Setup
 from tvsd.model import plant as K
 from tvsd.scan.geometry import aim, doe_b_target
 from tvsd.scan.settings import ScanSettings
 from tvsd.sim import runs
+from tvsd.sim.record import substeps_for
 from tvsd.sim.virtual_mcu import PULSE_OPTICAL, VirtualMcu
 
 
@@ -143,7 +145,12 @@ class McuPlant:
     def __post_init__(self) -> None:
         if not self.speed > 0:
             raise ValueError(f"speed must be > 0, got {self.speed}")
-        self.setup = Setup.from_config(self.cfg, vibration=self.vibration)
+        # substeps as the offline simulator takes them: a fast winding (plant.L 0.1 mH) would
+        # diverge at one RK4 step per tick, and the SIL process never answer its start
+        effects = parse_effects(self.cfg.sil_or_default.effects)
+        self.setup = Setup.from_config(
+            self.cfg, effects=effects, vibration=self.vibration, substeps=substeps_for(self.cfg, effects)
+        )
         self.counts_per_rev = self.cfg.sil_or_default.measurement.encoder_counts_per_rev
         self.beta = target_beta(self.cfg, self.target)
         self._n = max(1, round(self.chunk_s / self.setup.dt))
@@ -368,7 +375,8 @@ def steady_state(
 ) -> np.ndarray:
     """The plant's state after `seconds` at a constant voltage (angle reset to 0): a start at
     constant speed, so a revolution's β is not skewed by acceleration."""
-    setup = Setup.from_config(cfg, vibration=vibration)
+    effects = parse_effects(cfg.sil_or_default.effects)
+    setup = Setup.from_config(cfg, effects=effects, vibration=vibration, substeps=substeps_for(cfg, effects))
     state = K.state_array(setup.dt)
     runs.open_loop(
         setup, np.full(round(seconds / setup.dt), volts), decim=round(seconds / setup.dt), state=state
