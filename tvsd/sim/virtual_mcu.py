@@ -7,6 +7,8 @@ layer into a shared library and loaded here with ctypes: in a source checkout
 wheel was built). It is never built while tvsd runs. A thread pumps
 bytes between a pty and the core, so anything that opens :attr:`VirtualMcu.port` with pyserial
 talks to the firmware's own parser, command table, watchdog and stepper planner, byte for byte.
+A paced plant writes the core's output itself after each step (:meth:`VirtualMcu.write_out`):
+the pump's select() waits for the kernel's tty flip-buffer worker, which CPU load delays.
 
 Time: the core counts 16 MHz ticks (62.5 ns, the ATmega328P's Timer1 at F_CPU/1), the unit of
 every ``mcu_ticks`` on the wire. With ``clock="wall"`` the pump thread advances the core to the
@@ -408,15 +410,32 @@ class VirtualMcu:
                         self._rx_queue.append((when, arrival, data))  # ahead of the core: later
                     else:
                         self._rx_locked(arrival, data)
-                self._drain_locked()
-                if self._backlog:  # non-blocking; under the lock, as advances append to it
-                    try:
-                        written = os.write(self._master, self._backlog)
-                        del self._backlog[:written]
-                    except (BlockingIOError, InterruptedError):
-                        pass
-                    except OSError:
-                        return
+                if not self._write_locked():
+                    return
+
+    def write_out(self) -> None:
+        """What the core has sent so far, to the pty now (non-blocking; the rest waits in the
+        backlog): a paced plant calls it after its steps (McuPlant), so its state frames never
+        wait for the pump thread. That thread can be held in its select() for as long as the
+        kernel's tty flip-buffer work (a normal-priority kworker that every poll and read of a pty
+        waits for: n_tty_poll, tty_buffer_flush_work) is kept from running: under 2 CPU hogs 30 to
+        63 ms, and then no state frame went out and the daemon's control thread latched "MCU state
+        frames stopped" (mcu.link_timeout_ms 40 ms). A write never waits for it."""
+        with self._lock:
+            self._write_locked()
+
+    def _write_locked(self) -> bool:
+        """Drain the core's TX ring and write the backlog (lock held); False once the pty is gone."""
+        self._drain_locked()
+        if self._backlog:  # non-blocking; under the lock, as advances append to it
+            try:
+                written = os.write(self._master, self._backlog)
+                del self._backlog[:written]
+            except (BlockingIOError, InterruptedError):
+                pass
+            except OSError:
+                return False
+        return True
 
     # ---- lifetime -----------------------------------------------------------------------
     def close(self) -> None:
