@@ -430,8 +430,8 @@ class VirtualMcu:
         """`data` cut after each heartbeat frame in it, each part with the time its last byte was
         on the wire at the latest: a heartbeat's own `host_us` (CLOCK_MONOTONIC µs when the host
         built it, mod 2**32), the rest `arrival`. Why: host bytes reach this pty through the
-        kernel's tty flip-buffer work, a normal-priority kworker; under CPU hogs it ran 30-60 ms
-        late, so heartbeats the host wrote 12.5 ms apart were read, and went into the core, more
+        kernel's tty flip-buffer work, a normal-priority kworker, which CPU hogs delay by tens of
+        ms, so heartbeats the host wrote 12.5 ms apart were read, and went into the core, more
         than the 50 ms watchdog apart (firmware expiries while the host's own gaps stayed
         13-17 ms). A real UART or USB link puts the host's bytes on the wire when it writes
         them; so does this, for the frames that say when."""
@@ -466,8 +466,8 @@ class VirtualMcu:
         backlog): a paced plant calls it after its steps (McuPlant), so its state frames never
         wait for the pump thread. That thread can be held in its select() for as long as the
         kernel's tty flip-buffer work (a normal-priority kworker that every poll and read of a pty
-        waits for: n_tty_poll, tty_buffer_flush_work) is kept from running: under 2 CPU hogs 30 to
-        63 ms, and then no state frame went out and the daemon's control thread latched "MCU state
+        waits for: n_tty_poll, tty_buffer_flush_work) is kept from running: under 2 CPU hogs up to
+        30 ms, and no state frame went out meanwhile and the daemon's control thread latched "MCU state
         frames stopped" (mcu.link_timeout_ms 40 ms). A write never waits for it."""
         with self._lock:
             self._write_locked()
