@@ -17,9 +17,10 @@ SECONDS = 20.0
 @pytest.mark.slow
 @pytest.mark.xfail(
     strict=False,
-    reason="issue 13, open: under the API load the MCU link still faults on this shared machine "
-    "(3 of 3 runs: e.g. 2 watchdog expiries and a link loss in 20 s; 27 expiries in a 60 s bench "
-    "soak). The IMU faults are gone (0 in every soak since the bus fix; README, Soak).",
+    reason="issue 13, open: under the API load the virtual MCU still sees heartbeats late (2 of 2 "
+    "runs: 5 firmware watchdog expiries and an mcu_stale each, the host's heartbeats <= 15.7 ms "
+    "apart; 28 expiries in a 90 s bench soak); likely the SIL's pty, which delivers host bytes "
+    "through a normal-priority kernel worker, not yet measured under this load (README, Soak).",
 )
 def test_a_short_soak_under_cpu_hogs_has_no_fault_and_no_watchdog_expiry() -> None:
     """`soak(20 s)`: the SIL daemon at 25 rev/s scanning and recording, a normal-priority CPU hog
@@ -61,6 +62,11 @@ def test_a_short_soak_under_cpu_hogs_alone_keeps_the_mcu_link() -> None:
     failed on MCU watchdog expiries instead, at load average 25-30 from other jobs). Samples lost
     are printed, not asserted: their target (≤ 0.1 %) is the benchmark's, and a short run on a
     machine others load measures the machine.
+
+    The MCU faults it caught in CI (`mcu_stale` with the host on time) were the SIL's pty: its
+    reads and polls wait for the kernel's tty flip-buffer worker, which the hogs delay, and the
+    virtual MCU's frames went out only after such a read (README, Soak: "the pty's kernel
+    worker"; tvsd.sim.virtual_mcu.VirtualMcu.write_out and _sent_times).
     """
     res = soak(SECONDS, clients=0, batches=False)
     print(json.dumps(res, indent=1))

@@ -283,3 +283,52 @@ def test_long_advance_loses_no_frame(manual: tuple[VirtualMcu, serial.Serial, Re
     assert len(states) >= 2000 and not [f for f in frames if f.name == "fault"]
     assert {(b.seq - a.seq) % 2**16 for a, b in pairwise(frames)} == {1}
     assert _tick_steps(states) == {CLOCK_HZ // 10_000}
+
+
+def test_a_heartbeat_read_late_enters_the_core_at_its_own_send_time(
+    manual: tuple[VirtualMcu, serial.Serial, Reader],
+) -> None:
+    """On a paced line (rx_timeline: host time → core time, as McuPlant sets it), a heartbeat
+    whose host_us says it was built 40 ms before it could be read enters the core at that
+    time, not at the read: host bytes reach the pty through the kernel's tty flip-buffer work,
+    which CPU load delays by tens of ms, and a real wire would have had them at once.
+    Tolerance: host_us has 1 µs steps and the core 62.5 ns ticks: 2 µs; the read's own time
+    (the old stamp) is ≥ 40 ms later."""
+    vm, port, rd = manual
+    _arm(port, rd, watchdog_ms=1000, state_div=10)
+    base = time.monotonic() - 1.0  # host time `base` is core time 0: now is ~1 s
+    vm.advance_to(0.5)
+    vm.rx_timeline = lambda t: t - base
+    sent = time.monotonic() - 0.040
+    host_us = int(sent * 1e6) & 0xFFFF_FFFF
+    port.write(encode("heartbeat", 4, host_us=host_us))
+    assert until_queued(vm)
+    vm.advance_to(time.monotonic() - base + 0.5)  # the core past the read's own time
+    ack = rd.wait("heartbeat_ack")
+    assert ack.fields["host_us"] == host_us
+    assert ack.fields["mcu_ticks"] / CLOCK_HZ == pytest.approx(int(sent * 1e6) / 1e6 - base, abs=2e-6)
+
+
+def until_queued(vm: VirtualMcu, timeout: float = 5.0) -> bool:
+    """The pump has read the host's bytes (they wait in the core's queue for their time)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if vm._rx_queue:
+            return True
+        time.sleep(0.001)
+    return False
+
+
+def test_a_heartbeat_split_across_two_reads_is_still_found() -> None:
+    """The pty hands bytes over in any cut: a heartbeat whose first bytes came in the previous
+    read still cuts the second at its end, with its own send time."""
+    with VirtualMcu(clock="manual") as vm:
+        arrival = time.monotonic()
+        host_us = int((arrival - 0.030) * 1e6) & 0xFFFF_FFFF
+        hb, pwm = encode("heartbeat", 9, host_us=host_us), encode("pwm_set", 10, duty=5)
+        first = vm._sent_times(pwm + hb[:6], arrival)
+        second = vm._sent_times(hb[6:] + pwm, arrival)
+    assert first == [(arrival, pwm + hb[:6])]
+    (t_hb, part_hb), (t_rest, rest) = second
+    assert part_hb == hb[6:] and t_hb == pytest.approx(arrival - 0.030, abs=2e-6)
+    assert rest == pwm and t_rest == arrival

@@ -342,6 +342,7 @@ class McuPlant:
                 line = p.sim0 + self.speed * (time.monotonic() - p.wall0)
                 while self.t + self.chunk_s <= line:
                     self.step()
+                    self.mcu.write_out()  # its state frames out now, not when the pump next runs
                 lag = line - self.t
                 p.lag_sum_s += lag
                 p.lag_max_s = max(p.lag_max_s, lag)

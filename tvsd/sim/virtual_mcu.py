@@ -7,6 +7,8 @@ layer into a shared library and loaded here with ctypes: in a source checkout
 wheel was built). It is never built while tvsd runs. A thread pumps
 bytes between a pty and the core, so anything that opens :attr:`VirtualMcu.port` with pyserial
 talks to the firmware's own parser, command table, watchdog and stepper planner, byte for byte.
+A paced plant writes the core's output itself after each step (:meth:`VirtualMcu.write_out`):
+the pump's select() waits for the kernel's tty flip-buffer worker, which CPU load delays.
 
 Time: the core counts 16 MHz ticks (62.5 ns, the ATmega328P's Timer1 at F_CPU/1), the unit of
 every ``mcu_ticks`` on the wire. With ``clock="wall"`` the pump thread advances the core to the
@@ -42,6 +44,7 @@ import tempfile
 import threading
 import time
 import tty
+import zlib
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
@@ -49,6 +52,7 @@ from types import TracebackType
 from typing import Literal
 
 from tvsd.errors import DeviceError
+from tvsd.hw.mcu.spec import FRAME_CRC, FRAME_HEADER, load_spec
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
 LIBRARY = FIRMWARE_DIR / "build" / "libtvsmcu_host.so"  # the checkout's (make -C firmware host-lib)
@@ -61,6 +65,7 @@ _DUTY_FULL = 32767
 _PUMP_PERIOD_S = 0.001
 _PTY_BACKLOG = 65536  # bytes held for a slow reader before the core's TX ring takes the loss
 _UART_SLICE_S = 0.001  # longest stretch of core time between two drains of its TX ring
+_HB_MAX_AGE_US = 1_000_000  # a heartbeat's host_us older than this at its read: not trusted
 
 
 class VirtualMcuError(DeviceError):
@@ -204,6 +209,10 @@ class VirtualMcu:
         # firmware's watchdog expired on it). (core ticks, arrival, bytes), in arrival order.
         self.rx_timeline: Callable[[float], float] | None = None
         self._rx_queue: deque[tuple[int, float, bytes]] = deque()
+        spec = load_spec()
+        hb = spec.by_name("heartbeat")
+        self._hb_head = (spec.sync, hb.size, hb.id)  # a heartbeat frame's SYNC, LEN, ID
+        self._rx_tail = b""  # the last bytes read: a heartbeat split across two reads
         self._thread = threading.Thread(target=self._pump, name="virtual-mcu", daemon=True)
         self._thread.start()
 
@@ -402,21 +411,79 @@ class VirtualMcu:
                     while self._backlog:
                         self._backlog.clear()
                         self._drain_locked()
-                if data:
-                    when = self._ticks(at) if math.isfinite(at) else -1
-                    if self._rx_queue or when > int(self._lib.vmcu_now()):
-                        self._rx_queue.append((when, arrival, data))  # ahead of the core: later
-                    else:
-                        self._rx_locked(arrival, data)
-                self._drain_locked()
-                if self._backlog:  # non-blocking; under the lock, as advances append to it
-                    try:
-                        written = os.write(self._master, self._backlog)
-                        del self._backlog[:written]
-                    except (BlockingIOError, InterruptedError):
-                        pass
-                    except OSError:
-                        return
+                if data and math.isfinite(at):
+                    for sent, part in self._sent_times(data, arrival):
+                        when = self._ticks(timeline(sent)) if sent < arrival else self._ticks(at)  # type: ignore[misc]
+                        self._rx_in_locked(when, arrival, part)
+                elif data:
+                    self._rx_in_locked(-1, arrival, data)
+                if not self._write_locked():
+                    return
+
+    def _rx_in_locked(self, when: int, arrival: float, data: bytes) -> None:
+        if self._rx_queue or when > int(self._lib.vmcu_now()):
+            self._rx_queue.append((when, arrival, data))  # ahead of the core: later
+        else:
+            self._rx_locked(arrival, data)
+
+    def _sent_times(self, data: bytes, arrival: float) -> list[tuple[float, bytes]]:
+        """`data` cut after each heartbeat frame in it, each part with the time its last byte was
+        on the wire at the latest: a heartbeat's own `host_us` (CLOCK_MONOTONIC µs when the host
+        built it, mod 2**32), the rest `arrival`. Why: host bytes reach this pty through the
+        kernel's tty flip-buffer work, a normal-priority kworker, which CPU hogs delay by tens of
+        ms, so heartbeats the host wrote 12.5 ms apart were read, and went into the core, more
+        than the 50 ms watchdog apart (firmware expiries while the host's own gaps stayed
+        13-17 ms). A real UART or USB link puts the host's bytes on the wire when it writes
+        them; so does this, for the frames that say when."""
+        sync, size, hb_id = self._hb_head
+        frame = FRAME_HEADER + size + FRAME_CRC
+        buf = self._rx_tail + data
+        skip = len(self._rx_tail)
+        self._rx_tail = buf[-(frame - 1) :]
+        parts: list[tuple[float, bytes]] = []
+        start, last = 0, -math.inf
+        arrival_us = int(arrival * 1e6)
+        i = buf.find(sync)
+        while 0 <= i <= len(buf) - frame:
+            end = i + frame
+            if buf[i + 1] == size and buf[i + 4] == hb_id and end > skip:
+                body = buf[i : i + FRAME_HEADER + size]
+                if zlib.crc32(body) == int.from_bytes(buf[i + FRAME_HEADER + size : end], "little"):
+                    host_us = int.from_bytes(buf[i + FRAME_HEADER : i + FRAME_HEADER + size], "little")
+                    age_us = (arrival_us - host_us) % 2**32
+                    if age_us <= _HB_MAX_AGE_US:  # else not a time we can trust: the read's
+                        sent = max(last, arrival - age_us * 1e-6)
+                        parts.append((sent, data[start : end - skip]))
+                        start, last = end - skip, sent
+                    i = end - 1
+            i = buf.find(sync, i + 1)
+        if start < len(data):
+            parts.append((arrival, data[start:]))
+        return parts
+
+    def write_out(self) -> None:
+        """What the core has sent so far, to the pty now (non-blocking; the rest waits in the
+        backlog): a paced plant calls it after its steps (McuPlant), so its state frames never
+        wait for the pump thread. That thread can be held in its select() for as long as the
+        kernel's tty flip-buffer work (a normal-priority kworker that every poll and read of a pty
+        waits for: n_tty_poll, tty_buffer_flush_work) is kept from running: under 2 CPU hogs up to
+        30 ms, and no state frame went out meanwhile and the daemon's control thread latched "MCU state
+        frames stopped" (mcu.link_timeout_ms 40 ms). A write never waits for it."""
+        with self._lock:
+            self._write_locked()
+
+    def _write_locked(self) -> bool:
+        """Drain the core's TX ring and write the backlog (lock held); False once the pty is gone."""
+        self._drain_locked()
+        if self._backlog:  # non-blocking; under the lock, as advances append to it
+            try:
+                written = os.write(self._master, self._backlog)
+                del self._backlog[:written]
+            except (BlockingIOError, InterruptedError):
+                pass
+            except OSError:
+                return False
+        return True
 
     # ---- lifetime -----------------------------------------------------------------------
     def close(self) -> None:
