@@ -104,6 +104,7 @@ class Daemon(DeviceEvents):
         self.faults = FaultLog(cfg.daemon.fault_log_size)
         self.recording: SessionRecording | None = None
         self.scan: ScanSession | None = None  # while scanning
+        self.scan_why: str | None = None
         self.aim_deg = (60.0, 0.0)  # φ, γ: DoE B's middle target
         self.points = PointCounters()
         self.identification: IdentifyRun | None = None  # the latest `identify` (tvsd/daemon/identify.py)

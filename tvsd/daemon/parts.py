@@ -40,6 +40,7 @@ class DaemonParts:
     faults: FaultLog
     recording: SessionRecording | None
     scan: ScanSession | None  # while scanning
+    scan_why: str | None  # why that scan's points are not IMU-compensated (None: they are)
     aim_deg: tuple[float, float]  # φ, γ
     points: PointCounters
     identification: IdentifyRun | None  # the latest `identify`
