@@ -56,10 +56,15 @@ def bench_point_latency(points: int = 200, rps: float = 25.0, idle_s: float = 20
                 before = sample["loop"]  # type: ignore[index]
                 cpu0, t0 = _cpu_s(proc.pid), time.monotonic()
                 lat: list[float] = []
+                untimed = 0
                 with RpcClient(sock) as sub:
                     for msg in sub.subscribe("points"):
                         for point in msg if isinstance(msg, list) else [msg]:
-                            lat.append(time.monotonic() - float(point["t_mono"]))  # type: ignore[index]
+                            t_mono = point["t_mono"]  # type: ignore[index]
+                            if t_mono is None:  # no MCU clock sync yet: no host time to take
+                                untimed += 1
+                                continue
+                            lat.append(time.monotonic() - float(t_mono))
                         if len(lat) >= points:
                             break
                 cpu_pct = 100 * (_cpu_s(proc.pid) - cpu0) / (time.monotonic() - t0)
@@ -79,6 +84,7 @@ def bench_point_latency(points: int = 200, rps: float = 25.0, idle_s: float = 20
         "api_point_latency_p99_ms": float(np.percentile(ms, 99)),
         "api_point_latency_max_ms": float(ms.max()),
         "api_points": float(len(ms)),
+        "api_points_untimed": float(untimed),
         "api_rps": rps,
         # the whole SIL process: control thread, link, virtual MCU, plant, IMU twins, asyncio
         "sil_daemon_cpu_pct_of_one_core": round(cpu_pct, 1),
