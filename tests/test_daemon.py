@@ -192,7 +192,11 @@ def test_spin_scan_points_record_export_and_orderly_stop(daemon, tmp_path):
     )
     if exported.returncode == 0:
         rec = read_recording(out)
-        assert rec.sample_rate_hz == pytest.approx(1000, rel=0.01) and abs(rec.omega[-1] / 6.2832 - 20) < 1
+        # the speed held over the recording, not one 1 kHz sample: the SIL drive's ripple beside a
+        # loaded machine spans 18.1-20.7 rev/s within 0.8 s (measured, load 6); spin_to waited
+        # for 20 within 0.5 on the status's 100-tick mean
+        speed = float(sum(rec.omega)) / len(rec.omega) / 6.2832
+        assert rec.sample_rate_hz == pytest.approx(1000, rel=0.01) and abs(speed - 20) < 1, speed
     else:
         # A stall of the shared machine longer than a 1 ms bin leaves a gap (docs/architecture.md: ms stalls
         # happen); export then refuses with its documented one-line message, exit 2.
