@@ -248,7 +248,7 @@ class ImuService:
     def _deliver_queued(self) -> None:
         self._wake_pending = False  # first: a batch queued from here on wakes the loop again
         queue = self._queue
-        while queue:
+        for _ in range(len(queue)):  # those queued by now: later ones have their own wake-up
             self._deliver(queue.popleft())
 
     def _polled(self, sensor: SensorReader) -> None:
