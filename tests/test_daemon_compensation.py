@@ -42,19 +42,23 @@ def _scan_once(sock, data, config, seconds: float) -> tuple[np.ndarray, np.ndarr
     makes no_imu points, not counted here)."""
     before = set(data.iterdir()) if data.exists() else set()
     tvsctl(sock, "record", "start")
-    tvsctl(sock, "scan", "start")
+    # a fault (a stall of the shared machine) ends the attempt, refused scan start included:
+    # the caller tries again
+    started = tvsctl(sock, "scan", "start", check=False).returncode == 0
     try:
-        wait_compensated(sock, config)
+        if started:
+            wait_compensated(sock, config)
     except AssertionError:
         if status(sock)["state"] != "fault":
             raise
-    else:  # a fault (a stall of the shared machine) ends the attempt: the caller tries again
-        wait_ticks(sock, seconds)
+    else:
+        if started:
+            wait_ticks(sock, seconds)
     tvsctl(sock, "scan", "stop", check=False)
     tvsctl(sock, "record", "stop")
     (path,) = set(data.iterdir()) - before
     rec = open_recording(path)
-    faulted = any(m["event"] == "fault" for m in rec.marks)
+    faulted = not started or any(m["event"] == "fault" for m in rec.marks)
     points = rec.channels.get("points")
     beta = np.zeros(0) if points is None else points["beta"][(points["flags"] & FLAG_COMPENSATED) != 0]
     return beta, rec.channels["pulses"], faulted
