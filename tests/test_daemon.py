@@ -84,6 +84,29 @@ def wait_ticks(sock: Path, seconds: float) -> None:
     )
 
 
+def clock_sync_s(config: Path) -> float:
+    """The longest wait for the MCU clock sync to become ready: one full window of its heartbeat
+    round trips (mcu.clock.window × the heartbeat period, 64 s with the widened watchdog of
+    RELAXED_FAILSAFE). It is ready once `min_samples` round trips lie within `rtt_margin_s` of the
+    window's fastest: on a quiet machine after 8 heartbeats; beside CPU hogs the round trips
+    spread (measured: fastest 1.3 ms, median 2-7 ms, p90 0.25-0.85 s) and it takes tens of them.
+    Past one window the oldest round trips leave it: waiting longer would not help."""
+    mcu = load_config(config).mcu
+    return mcu.clock.window * mcu.heartbeat_period_s
+
+
+def wait_compensated(sock: Path, config: Path) -> dict:
+    """While scanning: until the points are IMU-compensated (IMU ok and the MCU clock synced);
+    before that the daemon makes them from the zero pulses alone, flagged no_imu."""
+    return wait_status(
+        sock,
+        lambda s: s["points"].get("compensated"),
+        clock_sync_s(config),
+        "compensated points (the IMU ok and the MCU clock sync ready)",
+        fault_ends=True,
+    )
+
+
 def spin_to(sock: Path, rps: float, timeout: float = 30.0, tol: float = 0.5) -> None:
     tvsctl(sock, "speed", f"{rps:g}")
     wait_status(sock, lambda s: abs(s["rps"] - rps) < tol, timeout, f"{rps:g} rev/s", fault_ends=True)
@@ -151,8 +174,9 @@ def test_spin_scan_points_record_export_and_orderly_stop(daemon, tmp_path):
     points = tvsctl(sock, "points", "--count", "3", "--json")
     rows = [json.loads(line) for line in points.stdout.splitlines() if line.strip()]
     assert len(rows) == 3 and all({"x", "y", "z", "sigma_x", "flags", "t_mono"} <= r.keys() for r in rows)
-    # t_mono is the optical pulse on this machine's monotonic clock: it lies in the past.
-    assert all(r["t_mono"] < time.monotonic() for r in rows)
+    # t_mono is the optical pulse on this machine's monotonic clock: it lies in the past (null
+    # until the MCU clock sync is ready: points are made from the pulses before it is).
+    assert all(r["t_mono"] is None or r["t_mono"] < time.monotonic() for r in rows)
     wait_status(
         sock, lambda s: s["points"]["per_s"] > 5, 15, "a point stream at the rotation rate", fault_ends=True
     )
@@ -168,7 +192,11 @@ def test_spin_scan_points_record_export_and_orderly_stop(daemon, tmp_path):
     )
     if exported.returncode == 0:
         rec = read_recording(out)
-        assert rec.sample_rate_hz == pytest.approx(1000, rel=0.01) and abs(rec.omega[-1] / 6.2832 - 20) < 1
+        # the speed held over the recording, not one 1 kHz sample: the SIL drive's ripple beside a
+        # loaded machine spans 18.1-20.7 rev/s within 0.8 s (measured, load 6); spin_to waited
+        # for 20 within 0.5 on the status's 100-tick mean
+        speed = float(sum(rec.omega)) / len(rec.omega) / 6.2832
+        assert rec.sample_rate_hz == pytest.approx(1000, rel=0.01) and abs(speed - 20) < 1, speed
     else:
         # A stall of the shared machine longer than a 1 ms bin leaves a gap (docs/architecture.md: ms stalls
         # happen); export then refuses with its documented one-line message, exit 2.
@@ -286,18 +314,19 @@ def test_fault_injection_names_what_it_accepts(daemon):
     assert reply["error"]["code"] == -32602 and "use mcu, imu or control" in reply["error"]["message"]
 
 
-def test_imu_loss_flags_points_and_scanning_goes_on(daemon):
+def test_imu_loss_flags_points_and_scanning_goes_on(daemon, tmp_path):
     _, sock, _ = daemon
     spin_to(sock, 20)
     tvsctl(sock, "scan", "start")
-    wait_status(sock, lambda s: s["points"]["total"] >= 10, 20, "points", fault_ends=True)
-    before = status(sock)["points"]
-    assert before["no_imu"] == 0  # IMU ok: compensated points, none flagged
+    wait_compensated(sock, tmp_path / "tvsd.yaml")
+    before = wait_status(sock, lambda s: s["points"]["total"] >= 10, 20, "points", fault_ends=True)["points"]
     assert "result" in rpc(sock, "inject_fault", device="imu", fault="loss")
     wait_status(sock, lambda s: s["imu"]["state"] in ("lost", "degraded"), 10, "the IMU loss")
-    wait_status(sock, lambda s: s["points"]["no_imu"] >= 10, 20, "flagged points", fault_ends=True)
+    n = before["no_imu"] + 10
+    wait_status(sock, lambda s: s["points"]["no_imu"] >= n, 20, "flagged points", fault_ends=True)
     s = status(sock)
     assert s["state"] == "scanning" and any(f["cause"].startswith("IMU") for f in s["faults"])
+    assert s["points"]["compensated"] is False and s["points"]["uncompensated_why"].startswith("IMU")
     # calibration needs the aperture at rest: refused while it turns, with the fix
     refused = rpc(sock, "imu_calibrate", seconds=1.0)
     assert refused["error"]["code"] == -32002 and "speed 0" in refused["error"]["message"]

@@ -114,3 +114,65 @@ def test_status_json_has_the_contracts_shape() -> None:
     assert with_latency["latency_p50_ms"] == 2.0 and with_latency["latency_max_ms"] == 5.0
     idle = Status(**{**status.__dict__, "loop": LoopStatus(math.nan, 0, math.nan, math.nan, 0)})
     assert "p99    0.0 µs" in idle.line()  # no tick yet
+
+
+class _Imu:
+    def __init__(self) -> None:
+        self.healthy, self.state = True, "ok"
+
+
+class _Drive:
+    """The DriveLink calls a scan session makes; `synced`: whether the MCU clock map is ready."""
+
+    clock_hz = 16e6
+
+    def __init__(self) -> None:
+        self.synced = False
+
+    def to_mcu_s(self, host_s: float) -> float:
+        return host_s if self.synced else math.nan
+
+    def sent_volts(self, t_mcu):  # type: ignore[no-untyped-def]
+        return t_mcu * 0.0
+
+
+def _scanning_daemon():  # type: ignore[no-untyped-def]
+    """A Daemon's scan logic without its devices: the IMU ok, the MCU clock not synced yet."""
+    from tvsd.config import load_config
+    from tvsd.daemon.app import Daemon
+    from tvsd.daemon.scan_session import PointCounters
+
+    d = object.__new__(Daemon)
+    d.cfg, d.imu, d.drive, d.web, d.recording = load_config(), _Imu(), _Drive(), None, None
+    d.aim_deg, d.points, d.scan, d.scan_why = (60.0, 0.0), PointCounters(), None, None
+    d._state = _at(S.SCANNING)
+    return d
+
+
+def test_points_are_made_uncompensated_until_the_mcu_clock_syncs_then_compensated() -> None:
+    """Without the host → MCU clock map the SA samples cannot be placed against the pulses: a
+    compensated session would wait for them for ever (0 points while 'scanning', IMU ok). The
+    daemon scans uncompensated, says why, and switches at the first IMU batch after the sync."""
+    import numpy as np
+
+    from tvsd.hw.imu_reader import ImuBatch
+
+    d = _scanning_daemon()
+    d._new_scan()
+    assert not d.scan.compensated and "clock sync" in d._points_status().to_json()["uncompensated_why"]
+    none = np.zeros((0, 3))
+    batch = ImuBatch("pl", np.zeros(0, dtype=np.int64), 0, np.zeros(0), none, none, np.zeros((0, 6)))
+    d._on_imu_batch(batch)
+    assert not d.scan.compensated  # still no clock: the same session goes on
+    d.drive.synced = True
+    d._on_imu_batch(batch)
+    st = d._points_status().to_json()
+    assert d.scan.compensated and st["compensated"] is True and "uncompensated_why" not in st
+    d.imu.healthy, d.imu.state = False, "lost"
+    d._on_imu_batch(batch)
+    assert not d.scan.compensated and d._points_status().uncompensated_why == "IMU lost"
+
+
+def test_the_points_status_says_nothing_of_compensation_when_not_scanning() -> None:
+    d = _scanning_daemon()
+    assert set(d._points_status().to_json()) == {"total", "no_imu", "per_s"}

@@ -104,10 +104,12 @@ class Daemon(DeviceEvents):
         self.faults = FaultLog(cfg.daemon.fault_log_size)
         self.recording: SessionRecording | None = None
         self.scan: ScanSession | None = None  # while scanning
+        self.scan_why: str | None = None
         self.aim_deg = (60.0, 0.0)  # φ, γ: DoE B's middle target
         self.points = PointCounters()
         self.identification: IdentifyRun | None = None  # the latest `identify` (tvsd/daemon/identify.py)
         self._stop = asyncio.Event()
+        self.recording_started = asyncio.Event()  # wakes _drain
         self.web: Any = None  # tvsd.daemon.web.server.WebView when cfg.web.enabled
         if cfg.web.enabled:  # built now: aiohttp's import and the floor kernel's load hold the GIL
             from tvsd.daemon.web.server import WebView
@@ -242,6 +244,9 @@ class Daemon(DeviceEvents):
 
     async def _drain(self) -> None:
         while True:
+            if self.recording is None:  # no timer to run 50 times a second for nothing
+                self.recording_started.clear()
+                await self.recording_started.wait()
             await asyncio.sleep(self.cfg.daemon.drain_period_s)
             if self.recording is not None:
                 self.recording.drain(self.runner)

@@ -7,7 +7,8 @@ not fit the state is refused by the state machine (tvsd.daemon.state), naming bo
 from __future__ import annotations
 
 import math
-from dataclasses import asdict
+import time
+from dataclasses import asdict, replace
 
 import numpy as np
 
@@ -16,7 +17,7 @@ from tvsd.daemon.fault_policy import FaultPolicy
 from tvsd.daemon.identify import IdentifyRun
 from tvsd.daemon.scan_session import ScanSession
 from tvsd.daemon.state import DaemonState
-from tvsd.daemon.status import Aim, LoopStatus, Status
+from tvsd.daemon.status import Aim, LoopStatus, PointsStatus, Status
 
 S = DaemonState
 
@@ -76,18 +77,44 @@ class Commands(FaultPolicy):
         self.identification = run
         run.start()
 
+    def _uncompensated_why(self) -> str | None:
+        """Why points cannot be IMU-compensated now (None: they can). Compensation needs the IMU
+        ok and the MCU clock sync ready: without the host → MCU map the SA samples cannot be
+        placed against the pulses, and a compensated stream would wait for them for ever (on a
+        loaded machine the sync takes tens of heartbeats: README "Point stream")."""
+        if self.imu is None or not self.imu.healthy:
+            return f"IMU {self.imu.state if self.imu is not None else 'off'}"
+        if not math.isfinite(self.drive.to_mcu_s(time.monotonic())):
+            return "MCU clock sync not ready (heartbeat round trips)"
+        return None
+
     def _new_scan(self) -> None:
-        """A new scan session at the current aim: IMU-compensated while the IMU is ok (ImuFeed
+        """A new scan session at the current aim: IMU-compensated while it can be (ImuFeed
         hands it the SA acceleration and the drive model's), else from the zero pulses alone
         (points flagged no_imu). A switch drops the pulses of the revolution in progress."""
+        why = self._uncompensated_why()
         self.scan = ScanSession(
             self.cfg,
             self.aim_deg,
             self.drive.clock_hz,
-            compensate=self.imu is not None and self.imu.healthy,
+            compensate=why is None,
             to_mcu_s=self.drive.to_mcu_s,
             sent_volts=self.drive.sent_volts,
         )
+        self.scan_why = why
+
+    def _follow_compensation(self) -> None:
+        """While scanning: a new session when compensation became possible or impossible."""
+        if self.scan is not None and self.state == S.SCANNING:
+            why = self._uncompensated_why()
+            if self.scan.compensated != (why is None):
+                self._new_scan()
+
+    def _points_status(self) -> PointsStatus:
+        st = self.points.status()
+        if self.scan is None:
+            return st
+        return replace(st, compensated=self.scan.compensated, uncompensated_why=self.scan_why)
 
     @property
     def measured_rps(self) -> float:
@@ -106,7 +133,7 @@ class Commands(FaultPolicy):
             loop=LoopStatus.of(self.runner.stats()),
             imu=imu,
             link=self.drive.status(),
-            points=self.points.status(),
+            points=self._points_status(),
             recording=str(self.recording.path) if self.recording is not None else None,
             aim_deg=Aim(phi=self.aim_deg[0], gamma=self.aim_deg[1]),
             faults=self.faults.entries()[-shown:] if shown else [],

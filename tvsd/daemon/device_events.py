@@ -50,8 +50,7 @@ class DeviceEvents(Commands):
         self.mark("imu_state", state=state, detail=detail)
         if state in ("lost", "degraded"):
             self._fault(FaultKind.IMU, f"IMU {state}: {detail}", "scanning continues; points flagged no_imu")
-        if self.state == S.SCANNING and self.scan is not None and self.scan.compensated != (state == "ok"):
-            self._new_scan()  # compensated while the IMU is ok, flagged no_imu while it is not
+        self._follow_compensation()  # compensated while the IMU is ok, flagged no_imu while it is not
 
     def _on_imu_batch(self, batch: Any) -> None:
         if self.web is not None:
@@ -59,4 +58,5 @@ class DeviceEvents(Commands):
         if self.recording is not None:
             self.recording.imu_batch(batch.sensor, batch.k, batch.t, batch.accel, batch.gyro)
         if self.scan is not None and self.state == S.SCANNING:
+            self._follow_compensation()  # the clock sync: ready, or lost its round trips
             self._publish(self.scan.imu_batch(batch))

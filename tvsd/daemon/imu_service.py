@@ -38,6 +38,7 @@ import contextlib
 import logging
 import math
 import os
+from collections import deque
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -128,6 +129,8 @@ class ImuService:
         self._collect: dict[str, list[np.ndarray]] | None = None  # raw frames while calibrating
         self._calibration: dict[str, object] = {"file": str(settings.calibration_file), "applied": False}
         self._injected: list[Any] = []
+        self._queue: deque[ImuBatch] = deque()  # reader thread → loop (_sink, _deliver_queued)
+        self._wake_pending = False
 
     @classmethod
     def for_daemon(cls, cfg: Config, backend: str, plant: Any = None) -> ImuService:
@@ -161,6 +164,7 @@ class ImuService:
         self._last_data.clear()
         self._snap.clear()
         self._snap_t.clear()
+        self._queue.clear()
         self.reader.start()
         self._set_state("starting", "bringing the sensors up")
         self._watch = asyncio.create_task(self._watchdog(), name="imu-watchdog")
@@ -227,14 +231,25 @@ class ImuService:
 
     # --- batches: reader thread → loop thread ----------------------------------------------------
     def _sink(self, batch: ImuBatch) -> None:
-        """On the reader thread: note the delivery, hand the batch to the loop. Never raises
-        (ImuReader would lose its thread)."""
+        """On the reader thread: note the delivery, queue the batch for the loop. Never raises
+        (ImuReader would lose its thread). One wake-up of the loop per poll, not per batch: a
+        poll delivers both sensors' batches, and each call_soon_threadsafe is a write to the
+        loop's self-pipe and a turn of the loop (deque append/popleft are atomic)."""
         self._last_data[batch.sensor] = self.clock.now()
         loop = self._loop
         if loop is None:
             return
-        with contextlib.suppress(RuntimeError):  # the loop closed under a stopping reader
-            loop.call_soon_threadsafe(self._deliver, batch)
+        self._queue.append(batch)
+        if not self._wake_pending:
+            self._wake_pending = True
+            with contextlib.suppress(RuntimeError):  # the loop closed under a stopping reader
+                loop.call_soon_threadsafe(self._deliver_queued)
+
+    def _deliver_queued(self) -> None:
+        self._wake_pending = False  # first: a batch queued from here on wakes the loop again
+        queue = self._queue
+        for _ in range(len(queue)):  # those queued by now: later ones have their own wake-up
+            self._deliver(queue.popleft())
 
     def _polled(self, sensor: SensorReader) -> None:
         """On the reader thread after each sensor's turn, data or not: refresh its status snapshot

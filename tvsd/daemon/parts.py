@@ -9,6 +9,7 @@ stop).
 
 from __future__ import annotations
 
+import asyncio
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +41,8 @@ class DaemonParts:
     faults: FaultLog
     recording: SessionRecording | None
     scan: ScanSession | None  # while scanning
+    recording_started: asyncio.Event  # set when a recording starts (the drain task waits for it)
+    scan_why: str | None  # why that scan's points are not IMU-compensated (None: they are)
     aim_deg: tuple[float, float]  # φ, γ
     points: PointCounters
     identification: IdentifyRun | None  # the latest `identify`

@@ -29,6 +29,7 @@ class RecordingControl(DaemonParts):
             self.recording = SessionRecording(path, self.config_text, from_tick=self.runner.ticks)
         except OSError as exc:
             raise DeviceError(f"cannot record into {self.data_dir}: {exc}; check --data-dir") from None
+        self.recording_started.set()
         self.mark("state", state=str(self.state), was=None)
         return path
 

@@ -40,9 +40,11 @@ class PointsStatus:
     per_s: float  # over the last 2 s
     latency_p50_ms: float | None = None  # optical pulse → point published (none yet: absent)
     latency_max_ms: float | None = None
+    compensated: bool | None = None  # while scanning: the points are IMU-compensated
+    uncompensated_why: str | None = None  # while scanning uncompensated: why
 
     def to_json(self) -> dict[str, Any]:
-        return {k: v for k, v in vars(self).items() if v is not None or not k.startswith("latency")}
+        return {k: v for k, v in vars(self).items() if v is not None or k in ("total", "no_imu", "per_s")}
 
 
 @dataclass(frozen=True)
