@@ -4,7 +4,9 @@ Each heartbeat gives (host send time, host receive time, MCU ticks when the MCU 
 MCU event lies somewhere inside the round trip; the midpoint is off by half the difference of the
 two one-way delays, so a sample is only as good as its round trip is short. Samples whose RTT
 exceeds the window's smallest RTT by more than ``rtt_margin_s`` are discarded (USB scheduling,
-a busy host), which bounds each kept sample's error by (margin + jitter of the best one) / 2. A
+a busy host), which bounds each kept sample's error by (margin + jitter of the best one) / 2;
+the `min_samples` fastest are always kept (beside CPU hogs round trips spread over ms and the
+margin alone kept too few to ever be ready), which bounds it by half the slowest kept. A
 straight line host = a + b·ticks over a sliding window then absorbs the crystal's drift (±100s of
 ppm, changing slowly with temperature).
 """
@@ -93,7 +95,10 @@ class ClockSync:
         ticks = np.array([t for t, _, _ in self._samples], dtype=np.int64)
         mid = np.array([m for _, m, _ in self._samples])
         rtt = np.array([r for _, _, r in self._samples])
-        keep = rtt <= rtt.min() + s.rtt_margin_s
+        # the round trips within the margin of the fastest, and at least the min_samples fastest:
+        # beside a loaded machine they spread over ms and one fast outlier left too few
+        k = min(s.min_samples, len(rtt))
+        keep = rtt <= max(rtt.min() + s.rtt_margin_s, float(np.partition(rtt, k - 1)[k - 1]))
         # Centre both axes: ticks reach 1e12 and monotonic seconds 1e6; float64 keeps µs then.
         x_ref = int(ticks[keep][-1])
         y_ref = float(mid[keep][-1])
@@ -111,7 +116,7 @@ class ClockSync:
             # robust sigma, floored at the error a kept sample may have by construction
             limit = max(s.outlier_sigma * 1.4826 * mad, s.rtt_margin_s / 2)
             new_keep = keep & (np.abs(res) <= limit)
-            if new_keep.sum() == keep.sum() or new_keep.sum() < 2:
+            if new_keep.sum() == keep.sum() or new_keep.sum() < min(s.min_samples, len(rtt)):
                 break
             keep = new_keep
         res = y[keep] - (a + b * x[keep])
