@@ -4,8 +4,9 @@ projection on noise with the whitened residual's own spectrum.
 Tolerances from the estimator's statistics: each spectral level is the median of a block of 21
 periodogram ordinates over ln 2, relative standard deviation ≈ 1.25/√21 = 0.27 per block; a
 broadband column averages ≈ 95 blocks (n = 4000); the level is floored at the flat one, so its
-variance ratio is 1 + E[(S − 1)₊] ≈ 1.11 ± 0.02 and [1, 1.25] is > 5σ; a column below 3 Hz (of 125) spans ~2 blocks (± 0.2), so the coloured check allows 0.6–1.5
-where the i.i.d. null's ratio is 1/3 — the test fails if the spectrum is ignored.
+variance ratio is 1 + E[(S − 1)₊] ≈ 1.11 ± 0.02 and [1, 1.25] is > 5σ; a column below 3 Hz
+(of 125) spans ~2 blocks (± 0.2), so the coloured check allows 0.6–1.5 where the i.i.d. null's
+ratio is 1/3 — the test fails if the spectrum is ignored.
 """
 
 from __future__ import annotations

@@ -221,7 +221,9 @@ def test_all(design: Design, seed: int = 0, boot: int = BOOTSTRAP, alpha: float 
     return Outcome(out, threshold, n, a, bool(out and out[0].z > threshold), e0, keep)
 
 
-def residual_spectrum(e: np.ndarray, width: int = SPECTRUM_BINS, basis: np.ndarray | None = None) -> np.ndarray:
+def residual_spectrum(
+    e: np.ndarray, width: int = SPECTRUM_BINS, basis: np.ndarray | None = None
+) -> np.ndarray:
     """The noise spectrum behind the whitened residual e, on the rfft grid of len(e), as a share of
     its mean level (1 where the AR whitening left it flat): each ordinate the median of its block
     of `width` bins over ln 2 (a median, so that a line — a cause — does not raise the level),
