@@ -475,6 +475,9 @@ class VirtualMcu:
     def _write_locked(self) -> bool:
         """Drain the core's TX ring and write the backlog (lock held); False once the pty is gone."""
         self._drain_locked()
+        if self.cable_cut:  # a cut cable: nothing of ours reaches the host (the plant writes too)
+            self._backlog.clear()
+            return True
         if self._backlog:  # non-blocking; under the lock, as advances append to it
             try:
                 written = os.write(self._master, self._backlog)
