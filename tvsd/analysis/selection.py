@@ -101,7 +101,7 @@ def reference_scan(design: D.Design) -> np.ndarray | None:
     prep = design.prep
     rows = prep.rows(np.asarray(ref, dtype=float))
     fs_rows = 1.0 / float(np.median(np.diff(prep.t_rows)))
-    scan = C._line_scan(np.zeros(len(rows)), rows, fs_rows, fs_rows / 2)
+    scan = C._line_scan(np.zeros(len(rows)), [rows], fs_rows, fs_rows / 2)
     return np.asarray(scan.f[scan.scan | (scan.f < C.RES_MIN_HZ)])
 
 
