@@ -58,7 +58,7 @@ def hidden_daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path,
     }
     # --realtime, as `make run` and the scanner run it: at normal priority on a loaded machine the
     # daemon stalls, and a recording with stalls (filled gaps, speed excursions) is not what the
-    # doctor is judged on here. (On this shared machine: under `flock /work/wt/soak.lock`.)
+    # doctor is judged on here (run it alone, not beside another real-time test or soak).
     yield from _daemon(tmp_path, daemon_config(tmp_path, changes), realtime=True)
 
 
