@@ -405,12 +405,8 @@ class VirtualMcu:
                 # heartbeat_ack's mcu_ticks matches the host's clock to the pump's latency.
                 if self.clock == "wall":
                     self._advance_locked(self._ticks(self._wall_s()))
-                if self.cable_cut:  # a cut cable: what the host sends never arrives, nor ours
-                    data = b""
-                    self._drain_locked()
-                    while self._backlog:
-                        self._backlog.clear()
-                        self._drain_locked()
+                if self.cable_cut:  # a cut cable: what the host sends never arrives (nor ours:
+                    data = b""  # _write_locked drops it)
                 if data and math.isfinite(at):
                     for sent, part in self._sent_times(data, arrival):
                         when = self._ticks(timeline(sent)) if sent < arrival else self._ticks(at)  # type: ignore[misc]
@@ -476,7 +472,9 @@ class VirtualMcu:
         """Drain the core's TX ring and write the backlog (lock held); False once the pty is gone."""
         self._drain_locked()
         if self.cable_cut:  # a cut cable: nothing of ours reaches the host (the plant writes too)
-            self._backlog.clear()
+            while self._backlog:  # what the core sent, and what a drain of a full ring adds
+                self._backlog.clear()
+                self._drain_locked()
             return True
         if self._backlog:  # non-blocking; under the lock, as advances append to it
             try:
