@@ -324,3 +324,21 @@ def test_an_error_the_daemon_could_not_address_to_a_call_ends_it(
         client._connect().sendall(b"not json\n")  # as a client whose line tvsd cannot read
         with pytest.raises(RemoteError, match="not JSON"):
             client.call("status")
+
+
+def test_the_points_stream_ends_with_a_message_when_its_socket_closes_under_the_read() -> None:
+    """tvsctl closes its connection on the way out while the points reader thread is still in
+    recv(): OSError EBADF escaped that thread as a traceback on stderr (CI, beside a busy loop).
+    The reader ends with DaemonUnavailable, which the caller sees if it is still waiting."""
+    import errno
+
+    from tvsd.cli.point_wait import stream_points
+    from tvsd.errors import DaemonUnavailable
+
+    class ClosedUnderRead:
+        def subscribe(self, topic: str):
+            raise OSError(errno.EBADF, "Bad file descriptor")
+            yield  # a generator, as RpcClient.subscribe
+
+    with pytest.raises(DaemonUnavailable, match="points stream ended"):
+        next(stream_points(ClosedUnderRead(), 1, timeout_s=0.5))  # type: ignore[arg-type]

@@ -14,7 +14,7 @@ import time
 from collections.abc import Iterator, Mapping
 from typing import Any
 
-from tvsd.errors import TvsdError
+from tvsd.errors import DaemonUnavailable, TvsdError
 from tvsd.rpc.client import RpcClient
 
 POLL_S = 1.0  # how often the state is looked at while no point comes
@@ -58,6 +58,8 @@ def stream_points(client: RpcClient, count: int, timeout_s: float | None) -> Ite
                     items.put(point)
         except TvsdError as exc:
             items.put(exc)
+        except OSError as exc:  # the socket closed under the read (tvsctl leaving): no traceback
+            items.put(DaemonUnavailable(f"the points stream ended: {exc.strerror or exc}"))
         items.put(done)
 
     threading.Thread(target=reader, name="tvsctl-points", daemon=True).start()
