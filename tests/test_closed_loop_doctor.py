@@ -174,15 +174,7 @@ def test_a_closed_loop_case_whose_spin_up_fold_was_unpredictable_is_named(tmp_pa
     else; this one (resonance 10×, σv 0.81, plan seed 5) was `none` before (`ls0`), its z 44 far
     above the threshold. Deterministic (fixed seeds): the old rule's `none` shows the test fails
     on it."""
-    import json
-
-    from tvsd.analysis import matrix_closed as MC
-
-    case = next(c for c in MC.plan(n_null=6, reps=3, sizes=(3.0, 10.0), seed=0) if c.seed == 5)
-    assert (case.cause, case.size) == ("resonance", 10.0)
-    out = tmp_path / "one.jsonl"
-    MC.run(out, [case], ("ls", "ls0"))
-    row = json.loads(out.read_text())
+    row = _plan_case_under(tmp_path, 5, "ls0")
     assert (row["ls"], row["ls0"]) == ("resonance", "none"), row
 
 
@@ -212,15 +204,7 @@ def test_a_closed_loop_mode_the_law_answers_is_scanned_for(tmp_path: Path) -> No
     times the local level) was never scanned: `none` at z 1.3. The lines are now the speed
     reference's (calibrate._excitation_rows). Closed-loop plan seed 0, case 45 (resonance 10×,
     σv 0.08, 4 rev/s): `ls1` (the command's lines) names nothing, `ls` the mode; deterministic."""
-    import json
-
-    from tvsd.analysis import matrix_closed as MC
-
-    case = next(c for c in MC.plan(n_null=6, reps=3, sizes=(3.0, 10.0), seed=0) if c.seed == 45)
-    assert (case.cause, case.size) == ("resonance", 10.0)
-    out = tmp_path / "one.jsonl"
-    MC.run(out, [case], ("ls", "ls1"))
-    row = json.loads(out.read_text())
+    row = _plan_case_under(tmp_path, 45, "ls1")
     assert (row["ls"], row["ls1"]) == ("resonance", "none"), row
 
 
@@ -267,3 +251,17 @@ def test_the_confusion_table_counts_what_was_named_instead_and_states_the_limit(
     assert limit(rows[:4], "delay", "ls", 0.9).startswith("from 4u: 3/3")
     last = text.splitlines()[-1].split()
     assert last[0] == "delay" and [int(x) for x in last[1:]] == [3, 1, 0]  # columns: delay, none, resonance
+
+
+def _plan_case_under(tmp_path: Path, seed: int, before: str) -> dict:
+    """Closed-loop plan seed 0's case `seed` (a 10x resonance) judged by the rules now (`ls`)
+    and by the variant `before` (tvsd.analysis.matrix_closed's rule switches)."""
+    import json
+
+    from tvsd.analysis import matrix_closed as MC
+
+    case = next(c for c in MC.plan(n_null=6, reps=3, sizes=(3.0, 10.0), seed=0) if c.seed == seed)
+    assert (case.cause, case.size) == ("resonance", 10.0)
+    out = tmp_path / "one.jsonl"
+    MC.run(out, [case], ("ls", before))
+    return dict(json.loads(out.read_text()))

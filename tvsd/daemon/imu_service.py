@@ -38,7 +38,6 @@ import contextlib
 import logging
 import math
 import os
-from collections import deque
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -50,6 +49,7 @@ from tvsd.hw import mpu6050 as reg
 from tvsd.hw.i2c_bus import open_bus
 from tvsd.hw.imu_clock import Clock, MonotonicClock
 from tvsd.hw.imu_reader import READER_PRIORITY, ImuBatch, ImuReader, SensorReader
+from tvsd.hw.loop_handoff import LoopHandoff
 from tvsd.hw.mpu6050 import ImuSettings, Mpu6050, SMBusLike
 from tvsd.sim.imu_motion import LivePlant, MotionSource
 
@@ -118,7 +118,6 @@ class ImuService:
         self.reader: ImuReader | None = None
         self.devices: dict[str, Any] = {}  # SIL: the twins (tvsd.sim.mpu6050.SimMpu6050)
         self._sensors: dict[str, SensorReader] = {}
-        self._loop: asyncio.AbstractEventLoop | None = None
         self._watch: asyncio.Task[None] | None = None
         self._t_start = math.nan
         self._last_data: dict[str, float] = {}  # reader thread's clock at the last delivery
@@ -129,8 +128,7 @@ class ImuService:
         self._collect: dict[str, list[np.ndarray]] | None = None  # raw frames while calibrating
         self._calibration: dict[str, object] = {"file": str(settings.calibration_file), "applied": False}
         self._injected: list[Any] = []
-        self._queue: deque[ImuBatch] = deque()  # reader thread → loop (_sink, _deliver_queued)
-        self._wake_pending = False
+        self._handoff: LoopHandoff[ImuBatch] = LoopHandoff(self._deliver, "IMU batch")  # reader → loop
 
     @classmethod
     def for_daemon(cls, cfg: Config, backend: str, plant: Any = None) -> ImuService:
@@ -145,7 +143,7 @@ class ImuService:
         Call from the event loop that should receive the batches."""
         if self.backend == "off" or self.reader is not None:
             return
-        self._loop = asyncio.get_running_loop()
+        self._handoff.loop = asyncio.get_running_loop()
         bus = await asyncio.to_thread(self._open)  # file and device opens: off the loop
         try:
             bias = await asyncio.to_thread(self._load_calibration)
@@ -164,7 +162,7 @@ class ImuService:
         self._last_data.clear()
         self._snap.clear()
         self._snap_t.clear()
-        self._queue.clear()
+        self._handoff.clear()
         self.reader.start()
         self._set_state("starting", "bringing the sensors up")
         self._watch = asyncio.create_task(self._watchdog(), name="imu-watchdog")
@@ -232,24 +230,10 @@ class ImuService:
     # --- batches: reader thread → loop thread ----------------------------------------------------
     def _sink(self, batch: ImuBatch) -> None:
         """On the reader thread: note the delivery, queue the batch for the loop. Never raises
-        (ImuReader would lose its thread). One wake-up of the loop per poll, not per batch: a
-        poll delivers both sensors' batches, and each call_soon_threadsafe is a write to the
-        loop's self-pipe and a turn of the loop (deque append/popleft are atomic)."""
+        (ImuReader would lose its thread). A poll delivers both sensors' batches: one wake-up of
+        the loop for them (tvsd.hw.loop_handoff)."""
         self._last_data[batch.sensor] = self.clock.now()
-        loop = self._loop
-        if loop is None:
-            return
-        self._queue.append(batch)
-        if not self._wake_pending:
-            self._wake_pending = True
-            with contextlib.suppress(RuntimeError):  # the loop closed under a stopping reader
-                loop.call_soon_threadsafe(self._deliver_queued)
-
-    def _deliver_queued(self) -> None:
-        self._wake_pending = False  # first: a batch queued from here on wakes the loop again
-        queue = self._queue
-        for _ in range(len(queue)):  # those queued by now: later ones have their own wake-up
-            self._deliver(queue.popleft())
+        self._handoff.put(batch)
 
     def _polled(self, sensor: SensorReader) -> None:
         """On the reader thread after each sensor's turn, data or not: refresh its status snapshot

@@ -14,13 +14,13 @@ goes in (at most one per ``link_lost_ms``).
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import math
 from collections import deque
 from collections.abc import Callable
 from typing import Any
 
+from tvsd.hw.loop_handoff import LoopHandoff
 from tvsd.hw.mcu.clock import ClockSync
 from tvsd.hw.mcu.events import FaultEvent, LinkStats, PulseEvent, Refusal
 from tvsd.hw.mcu.framing import Frame
@@ -44,6 +44,11 @@ log = logging.getLogger("tvsd.hw.mcu.link")  # the link's log, whichever part wr
 REFUSAL_LOG_INTERVAL_S = 1.0  # the same refusal is logged at most this often (with a count)
 KERNEL_HB_FORGET_S = 2.0  # an ack this late is no round trip worth fitting (as link.HB_FORGET_S)
 EVENT_QUEUE = 4096  # events waiting for the event loop: pulses ~50/s, refusals up to the state rate
+
+
+def _call(event: tuple[Callable[[Any], None], Any]) -> None:
+    fn, arg = event
+    fn(arg)
 
 
 class Receiver:
@@ -83,9 +88,7 @@ class Receiver:
         self.stats_waiters: list[asyncio.Future[McuStats]] = []
         self.rtts: deque[float] = deque(maxlen=rtt_history)
         self._event_seq: int | None = None
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._events: deque[tuple[Callable[[Any], None], Any]] = deque()
-        self._wake_pending = False
+        self._events: LoopHandoff[tuple[Callable[[Any], None], Any]] = LoopHandoff(_call, "MCU link event")
         classes = check_against(spec)
         handlers: dict[str, Callable[[Any, float], None]] = {
             "identify": self._on_identify,
@@ -104,7 +107,7 @@ class Receiver:
         }
 
     def attach(self, loop: asyncio.AbstractEventLoop) -> None:
-        self._loop = loop
+        self._events.loop = loop
 
     # --- the I/O thread -------------------------------------------------------------------------
     def on_frames(self, frames: list[Frame], now: float) -> None:
@@ -137,23 +140,7 @@ class Receiver:
         if len(self._events) >= EVENT_QUEUE and not always:
             self.stats.events_dropped += 1
             return
-        self._events.append((fn, arg))
-        loop = self._loop
-        if not self._wake_pending and loop is not None:
-            self._wake_pending = True
-            with contextlib.suppress(RuntimeError):  # the loop closed under a stopping link
-                loop.call_soon_threadsafe(self._drain)
-
-    def _drain(self) -> None:
-        """On the loop's thread: run the queued events in their order."""
-        self._wake_pending = False  # first: an event queued from here on wakes the loop again
-        events = self._events
-        while events:
-            fn, arg = events.popleft()
-            try:
-                fn(arg)
-            except Exception:  # a consumer's bug must not stop the others
-                log.exception("MCU link: event handler %s failed", getattr(fn, "__name__", fn))
+        self._events.put((fn, arg))
 
     def _on_identify(self, msg: Identify, now: float) -> None:
         self._post(self._identify_on_loop, msg, always=True)
