@@ -97,7 +97,8 @@ def load_config(path: str | Path | None = None, *, params: str | None = None) ->
         if not found:
             what = "not a regular file:" if profile.exists() else "no such file"
             raise ConfigError(
-                f"{path}:{line}: sil_profile: {what} {profile}; give a file path relative to {path.name}"
+                f"{path}:{line}: sil_profile: {what} {_short(str(profile))}; "  # quoted: one line
+                f"give a file path relative to {path.name}"
             )
         cfg = dataclasses.replace(cfg, sil=load_sil_profile(profile))
     _check_effects(cfg.sil_or_default, path, data)
