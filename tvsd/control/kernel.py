@@ -17,9 +17,10 @@ ordinary stalls (50 ticks did, in CI, and stopped a test's plant).
 Hardware mode (and the daemon's SIL, where the plant sits behind the MCU link): the I/O side writes
 each encoder measurement with its arrival time and, once the clock sync places it, the MCU's
 sampling instant, from which the law carries the angle forward at the measured speed. A
-measurement older than K_STALE_NS while the drive is commanded latches FAULT_STALE: the command is
-0 from the first tick past the limit, whatever the event loop is doing, and the kernel puts PWM 0
-on the wire itself (tvsd.control.link_tx).
+measurement older than K_STALE_NS while the drive is commanded holds the safe state: the command
+is 0 from the first tick past the limit, whatever the event loop is doing, and the kernel puts
+PWM 0 on the wire itself (tvsd.control.link_tx). Whether that hold latches (FAULT_STALE, FAULT_GAP)
+or resumes — late input from an MCU that sent every frame on time — is tvsd.control.hold's.
 
 SIL: the plant kernel (tvsd.model.plant.advance, open loop) is stepped inside the same loop by the
 real elapsed time with the command held since the previous tick, so the simulated scanner runs in
@@ -37,25 +38,25 @@ from numba import njit
 
 from tvsd.control import latency as L
 from tvsd.control import layout as W
+from tvsd.control.hold import check_input
 from tvsd.control.law import robust_law
 from tvsd.control.link_tx import link_stop, link_tick
 from tvsd.control.scanning import ramp_toward, track
 from tvsd.control.words import (
     FAULT_NONE,
     FAULT_OVERRUN,
-    FAULT_STALE,
     K_BUSY_NS,
+    K_CHAIN_NS,
+    K_DUE_NS,
     K_EXC_N,
     K_EXC_STEP_NS,
     K_EXC_T0_NS,
     K_FAULT,
-    K_FAULT_MEAS_NS,
     K_FAULT_NS,
     K_HB_NEXT_NS,
-    K_MEAS_NS,
+    K_HELD,
     K_MEAS_SEQ,
     K_SAMPLE_NS,
-    K_STALE_NS,
     K_STREAK_LIMIT,
     MODE_IDLE,
     MODE_POSITION,
@@ -107,19 +108,21 @@ def _busy(ts: np.ndarray, ns: int) -> None:
 
 @njit(cache=True, nogil=True)
 def _read_measurement(
-    ints: np.ndarray, vals: np.ndarray, ts: np.ndarray, held: tuple[float, float, int]
-) -> tuple[float, float, int]:
-    """(φ, ω, sample time) as one consistent set, or `held` (the last one) if the I/O side is
-    writing right now: it writes them between two increments of K_MEAS_SEQ. Never a retry loop:
-    the writer may be preempted mid-write by this very thread (SCHED_FIFO on its CPU), and a
-    spinning reader would then wait for the scheduler to move it (measured: 30–45 ms stalls).
+    ints: np.ndarray, vals: np.ndarray, ts: np.ndarray, held: tuple[float, float, int, int, int]
+) -> tuple[float, float, int, int, int]:
+    """(φ, ω, sample time, due time, chain start) as one consistent set, or `held` (the last
+    one) if the I/O side is writing right now: it writes them between two increments of
+    K_MEAS_SEQ. Never a retry loop: the writer may be preempted mid-write by this very thread
+    (SCHED_FIFO on its CPU), and a spinning reader would then wait for the scheduler to move it
+    (measured: 30–45 ms stalls).
     The clock call between the reads is opaque to the compiler, so it re-loads the sequence
     word rather than assuming nobody else writes it."""
     seq = ints[K_MEAS_SEQ]
     phi, omega, sample_ns = vals[V_PHI], vals[V_OMEGA], ints[K_SAMPLE_NS]
+    due_ns, chain_ns = ints[K_DUE_NS], ints[K_CHAIN_NS]
     L.now_ns(ts)
     if seq % 2 == 0 and ints[K_MEAS_SEQ] == seq:
-        return phi, omega, sample_ns
+        return phi, omega, sample_ns, due_ns, chain_ns
     return held
 
 
@@ -173,7 +176,7 @@ def control_loop(
     J, kv, kM, kb = plant[P.P_J], plant[P.P_KV] + plant[P.P_S2], plant[P.P_KM], plant[P.P_KB]
     R, ku, tc, tsv, v0 = plant[P.P_R], plant[P.P_KU], plant[P.P_TC], plant[P.P_TS], plant[P.P_V0]
     u = 0.0
-    measurement = (vals[V_PHI], vals[V_OMEGA], ints[K_SAMPLE_NS])
+    measurement = (vals[V_PHI], vals[V_OMEGA], ints[K_SAMPLE_NS], ints[K_DUE_NS], ints[K_CHAIN_NS])
     while ints[L.K_STOP] == 0:
         wake, deadline = L.wait_tick(ints, hist, edges, ts, deadline)
         dt = min((wake - prev) / 1e9, MAX_DT_S)
@@ -190,7 +193,7 @@ def control_loop(
             vals[V_PHI] = state[K.S_PHI]
             vals[V_OMEGA] = state[K.S_OMEGA]
         measurement = _read_measurement(ints, vals, ts, measurement)
-        phi, omega, sample_ns = measurement
+        phi, omega, sample_ns, due_ns, chain_ns = measurement
         if sample_ns > 0:
             # The encoder was read at sample_ns, up to a frame period (+ the link) ago: the law
             # sees the angle now. Held, ε would grow by ω·period between frames (0.063 rad at
@@ -204,16 +207,17 @@ def control_loop(
             if ints[L.K_STREAK] >= ints[K_STREAK_LIMIT]:
                 ints[K_FAULT] = FAULT_OVERRUN
                 ints[K_FAULT_NS] = wake
-            elif mode != MODE_IDLE and ints[K_STALE_NS] > 0 and wake - ints[K_MEAS_NS] > ints[K_STALE_NS]:
-                ints[K_FAULT] = FAULT_STALE
-                ints[K_FAULT_NS] = wake
-                ints[K_FAULT_MEAS_NS] = ints[K_MEAS_NS]
-            if ints[K_FAULT] != FAULT_NONE:
+                ints[K_HELD] = 0
                 ints[K_HB_NEXT_NS] = wake  # the next heartbeat, with PWM 0 behind it, goes now
+            elif check_input(ints, wake, mode != MODE_IDLE, due_ns, chain_ns):
+                # late input, the MCU alive throughout: resume from where the shaft is now, at
+                # its speed (the references tracked the stale measurement during the hold)
+                phi_ref = phi
+                omega_ref = omega if mode == MODE_SCAN else 0.0
         if ints[K_FAULT] != 0 or mode != MODE_SCAN:
             ints[K_EXC_N] = 0  # the excitation is for scanning only, and ends with any fault
         d_rps, d_u = _excitation(ints, exc, wake) if ints[K_EXC_N] > 0 else (0.0, 0.0)
-        if ints[K_FAULT] != 0 or mode == MODE_IDLE:
+        if ints[K_FAULT] != 0 or ints[K_HELD] != 0 or mode == MODE_IDLE:
             u = 0.0
             phi_ref = phi  # a restart begins where the shaft is, not where it was
             omega_ref = omega if mode == MODE_SCAN else 0.0

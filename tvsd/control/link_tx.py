@@ -8,8 +8,9 @@ thread sends only when it has the GIL, and C code holding the GIL (a catastrophi
 47–70 ms late (`tvsctl bench --only mcu_io`). The kernel needs no GIL: a live kernel means a
 live heartbeat, a stopped one none, and the firmware cuts within its watchdog.
 
-While the loop's fault holds command 0 (a stale measurement: the I/O thread, which feeds the
-measurement and sends the PWM duty, may itself be starved), every heartbeat is followed by a
+While the loop's fault or its late-input hold (tvsd.control.hold) keeps command 0 (a stale
+measurement: the I/O thread, which feeds the measurement and sends the PWM duty, may itself be
+starved), every heartbeat is followed by a
 `pwm_set 0` in the same write(): the kernel keeps the watchdog quiet only while the motor is
 commanded what the loop decided, never the last duty the starved I/O thread sent.
 
@@ -34,6 +35,7 @@ from tvsd.control.words import (
     K_HB_NEXT_NS,
     K_HB_PERIOD_NS,
     K_HB_SENT,
+    K_HELD,
     K_TX_ERRORS,
     K_TX_HB,
     K_TX_HB_ID,
@@ -111,7 +113,7 @@ def link_tick(
     ints[K_HB_NEXT_NS] = max(due + period, wake + period // 4)
     sync = ints[K_TX_SYNC]
     n = put_frame(buf, 0, sync, _seq(ints), ints[K_TX_HB_ID], (now // 1000) & 0xFFFFFFFF, 4)
-    if ints[K_FAULT] != 0:
+    if ints[K_FAULT] != 0 or ints[K_HELD] != 0:
         n += put_frame(buf, n, sync, _seq(ints), ints[K_TX_PWM_ID], 0, 2)
         ints[K_CUTS_SENT] += 1
     ints[K_TX_LEN], ints[K_TX_OFF], ints[K_TX_HB] = n, 0, 1

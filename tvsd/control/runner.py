@@ -27,7 +27,9 @@ from tvsd.control.words import (
     EXC_LEAD_NS,
     FAULT_NONE,
     K_BUSY_NS,
+    K_CHAIN_NS,
     K_CUTS_SENT,
+    K_DUE_NS,
     K_EXC_N,
     K_EXC_STEP_NS,
     K_EXC_T0_NS,
@@ -40,6 +42,13 @@ from tvsd.control.words import (
     K_HB_NEXT_NS,
     K_HB_PERIOD_NS,
     K_HB_SENT,
+    K_HELD,
+    K_HOLD_LONGEST_NS,
+    K_HOLD_MAX_NS,
+    K_HOLD_START_NS,
+    K_HOLD_TOTAL_NS,
+    K_HOLDS,
+    K_LATCH_NS,
     K_MEAS_NS,
     K_MEAS_SEQ,
     K_SAMPLE_NS,
@@ -69,6 +78,7 @@ from tvsd.model import plant as K
 __all__ = [
     "EXTRAPOLATE_MAX_NS",
     "TICK_DTYPE",
+    "Holds",
     "KernelHeartbeats",
     "LoopFault",
     "Realtime",
@@ -85,6 +95,15 @@ class TickBatch(NamedTuple):
     first: int
     next: int
     lost: int
+
+
+class Holds(NamedTuple):
+    """`Runner.holds`: command 0 held for late input, then control resumed (tvsd.control.hold)."""
+
+    resumed: int  # holds that ended in a resume
+    total_s: float  # their time in all
+    longest_s: float
+    held_s: float  # the hold now: how long so far (0: none)
 
 
 class KernelHeartbeats(NamedTuple):
@@ -104,8 +123,8 @@ class Runner:
     """The control thread and its shared arrays; SIL when built with `sil=True`.
 
     The I/O side's whole interface to the loop: the mode (`position`, `scan`, `idle`), the gains
-    (`set_gains`, `gains`), the measurement (`measured`, `stale_after`), the safe state (`fault`,
-    `fault_code`, `clear_fault`, `inject_overrun`), and what the loop did (`recent_ticks`,
+    (`set_gains`, `gains`), the measurement (`measured`, `stale_after`, `held`, `holds`), the safe
+    state (`fault`, `fault_code`, `clear_fault`, `inject_overrun`), and what the loop did (`recent_ticks`,
     `stats`, `ticks`, `command`). Every call is a few word writes or a copy: safe from any thread,
     and never a wait on the loop.
     """
@@ -220,19 +239,33 @@ class Runner:
 
     # --- the measurement (hardware mode) ------------------------------------------------------------
     def measured(
-        self, phi: float, omega: float, t_ns: int | None = None, sample_ns: int | None = None
+        self,
+        phi: float,
+        omega: float,
+        t_ns: int | None = None,
+        sample_ns: int | None = None,
+        *,
+        due_ns: int | None = None,
+        chain_ns: int | None = None,
     ) -> None:
         """Hardware mode: the I/O side writes the latest encoder angle and speed, when it
         arrived (CLOCK_MONOTONIC ns, default now; judged by the stale check) and, if known, when
         the MCU sampled it (the same clock; the law carries the angle forward from there at the
-        measured speed). The arrival time is written last."""
+        measured speed). For the late-input hold (`stale_after`'s `hold_s`, tvsd.control.hold):
+        when the frame was due by the MCU's own stamps (`due_ns` ≤ the arrival) and when the
+        unbroken chain of frames it belongs to began (`chain_ns`, an arrival time). Not given:
+        the frame is a chain of its own, due on arrival, so a hold it ends latches. The arrival
+        time is written last."""
         ints = self.ints
+        t = time.monotonic_ns() if t_ns is None else t_ns
         ints[K_MEAS_SEQ] += 1  # odd: an update is being written (a seqlock; one writer)
         self.vals[V_PHI] = phi
         self.vals[V_OMEGA] = omega
         ints[K_SAMPLE_NS] = 0 if sample_ns is None else sample_ns
+        ints[K_DUE_NS] = t if due_ns is None else due_ns
+        ints[K_CHAIN_NS] = t if chain_ns is None else chain_ns
         ints[K_MEAS_SEQ] += 1
-        ints[K_MEAS_NS] = time.monotonic_ns() if t_ns is None else t_ns
+        ints[K_MEAS_NS] = t
 
     @property
     def omega(self) -> float:
@@ -245,9 +278,31 @@ class Runner:
         t_ns = int(self.ints[K_MEAS_NS])
         return None if t_ns == 0 else (time.monotonic_ns() - t_ns) / L.NS
 
-    def stale_after(self, seconds: float) -> None:
-        """Hold the safe state when the newest measurement is older than this (0: never)."""
+    def stale_after(self, seconds: float, hold_s: float = 0.0) -> None:
+        """Command 0 when the newest measurement is older than `seconds` (0: never). With
+        `hold_s` 0 that latches the fault STALE at once; above 0 it holds, unlatched, until the
+        frames that come show late input (resume, counted: `holds`) or a stopped MCU (GAP),
+        or until `hold_s` after the last frame passes without them (STALE): tvsd.control.hold."""
+        if not (seconds >= 0 and hold_s >= 0) or (hold_s and hold_s < seconds):
+            raise ValueError(f"stale after {seconds!r} s, hold {hold_s!r} s: need 0 <= stale <= hold")
+        self.ints[K_HOLD_MAX_NS] = round(hold_s * L.NS)
         self.ints[K_STALE_NS] = round(seconds * L.NS)
+
+    @property
+    def held(self) -> bool:
+        """The loop holds command 0 for late input, not latched (tvsd.control.hold)."""
+        return bool(self.ints[K_HELD])
+
+    def holds(self) -> Holds:
+        """The late-input holds so far (each ended in a resume) and the one now, if any."""
+        i = self.ints
+        now = int(i[K_HELD]) and time.monotonic_ns() - int(i[K_HOLD_START_NS])
+        return Holds(
+            resumed=int(i[K_HOLDS]),
+            total_s=int(i[K_HOLD_TOTAL_NS]) / L.NS,
+            longest_s=int(i[K_HOLD_LONGEST_NS]) / L.NS,
+            held_s=max(now, 0) / L.NS,
+        )
 
     # --- the safe state ----------------------------------------------------------------------------
     @property
@@ -260,11 +315,19 @@ class Runner:
 
     @property
     def fault_after_measurement_s(self) -> float:
-        """How long after the newest measurement the fault latched (the stale check's latency)."""
+        """How long after the newest measurement the safe state began (the stale check's
+        latency; for a fault latched from a late-input hold: when the hold began)."""
         return (int(self.ints[K_FAULT_NS]) - int(self.ints[K_FAULT_MEAS_NS])) / L.NS
+
+    @property
+    def latched_after_measurement_s(self) -> float:
+        """How long after the newest measurement the stale check latched (with a late-input hold:
+        its bound, or sooner on a gap; without: the same as `fault_after_measurement_s`)."""
+        return (int(self.ints[K_LATCH_NS]) - int(self.ints[K_FAULT_MEAS_NS])) / L.NS
 
     def clear_fault(self) -> None:
         self.ints[L.K_STREAK] = 0
+        self.ints[K_HELD] = 0
         self.ints[K_FAULT] = FAULT_NONE
 
     def inject_overrun(self, periods: float) -> None:

@@ -5,8 +5,9 @@
   of the latest measurement the I/O side wrote), K_STALE_NS (0: no check), K_FAULT_NS and
   K_FAULT_MEAS_NS (when the fault latched, and the measurement time it judged), K_SAMPLE_NS (when
   the MCU sampled that measurement; 0: unknown, the angle is used as it is), K_MEAS_SEQ (the
-  seqlock around φ, ω and that time), the excitation's K_EXC_*, and the MCU frames the kernel
-  writes itself (K_HB_*, K_TX_*: tvsd.control.link_tx).
+  seqlock around φ, ω and that time), the excitation's K_EXC_*, the MCU frames the kernel
+  writes itself (K_HB_*, K_TX_*: tvsd.control.link_tx), and the late-input hold (K_HOLD*,
+  K_HELD, and K_DUE_NS, K_CHAIN_NS written with each measurement, inside its seqlock).
 - `vals` (float64): the law's words (tvsd.control.layout), the measurement V_PHI, V_OMEGA (written
   by the I/O side), outputs V_U … V_DT.
 - `exc` (float64, rows × tvsd.control.layout.N_EXC): the excitation table `tvsctl identify` plays.
@@ -51,7 +52,24 @@ K_EXC_T0_NS, K_EXC_STEP_NS, K_EXC_N = L.N_TIMING + 9, L.N_TIMING + 10, L.N_TIMIN
     K_TX_PWM_ID,
     K_CUTS_SENT,  # PWM-0 frames the kernel sent while its fault held the safe state
 ) = range(L.N_TIMING + 12, L.N_TIMING + 27)
-N_INTS = L.N_TIMING + 27
+# Late input (tvsd.control.kernel, "hold"): the bound of a hold (0: a stale measurement latches
+# at once), whether one holds now, when it began and the newest arrival before it, the counts;
+# and what the I/O side writes with each measurement: when the MCU's frame was due (its own
+# stamps from the chain's start: the arrival had nothing been late) and when the unbroken
+# chain of frames it belongs to began (a break: frames missing, a tick jump, a restart).
+(
+    K_HOLD_MAX_NS,
+    K_HELD,
+    K_HOLD_START_NS,
+    K_HOLD_REF_NS,
+    K_HOLDS,
+    K_HOLD_TOTAL_NS,
+    K_HOLD_LONGEST_NS,
+    K_DUE_NS,
+    K_CHAIN_NS,
+    K_LATCH_NS,  # when the stale check latched (K_FAULT_NS: when its safe state began)
+) = range(L.N_TIMING + 27, L.N_TIMING + 37)
+N_INTS = L.N_TIMING + 37
 EXC_LEAD_NS = 2_000_000  # an excitation starts this long after it is set: whole rows, from row 0
 
 
@@ -60,10 +78,12 @@ class LoopFault(enum.IntEnum):
 
     NONE = 0
     OVERRUN = 1  # `streak_limit` late ticks in a row
-    STALE = 2  # the newest measurement is older than `stale_after`
+    STALE = 2  # the newest measurement is older than `stale_after` (with a hold: beyond its bound)
+    GAP = 3  # held for late input, the frames came back with a gap: the MCU itself stopped
 
 
 FAULT_NONE, FAULT_OVERRUN, FAULT_STALE = LoopFault.NONE.value, LoopFault.OVERRUN.value, LoopFault.STALE.value
+FAULT_GAP = LoopFault.GAP.value
 
 # vals: the law's words (inputs the I/O side writes), the measurement, then outputs (kernel writes).
 V_MODE, V_REF, V_GP, V_GD, V_GR, V_G0, V_UMAX = W.MODE, W.REF, W.GP, W.GD, W.GR, W.G0, W.UMAX

@@ -3,8 +3,11 @@
 Each fault is listed with time, cause and what was done (`faults_list`), marked in the recording
 with a full-rate window of the control ticks before it, and published.
 - MCU link lost: the control thread holds PWM 0 once the newest state frame is older than
-  mcu.link_timeout_ms (tvsd.control.runner FAULT_STALE); the fault names how long after the last
-  frame that was. The firmware turns PWM and laser off on its own watchdog.
+  mcu.link_timeout_ms, and latches it (LoopFault.STALE) when none reaches the present within
+  mcu.link_lost_ms, or when those that come show a gap (LoopFault.GAP); the fault names how long
+  after the last frame PWM 0 began. The firmware turns PWM and laser off on its own watchdog.
+- Late input (the frames came late but complete: the host's tty input was delayed, not the MCU):
+  listed, not latched (control resumed; counted in the status's link.late_input_*).
 - MCU watchdog expired: listed, not latched (the next heartbeat re-arms it).
 - Control loop overrun streak: safe state (PWM 0).
 - SIL devices' process ended: safe state (its MCU link and IMU twins are gone).
@@ -52,16 +55,36 @@ class FaultPolicy(RecordingControl):
         if self.identification is not None:
             self.identification.abort(reason)
 
+    _holds_listed = 0  # the control thread's late-input holds already listed
+
+    def _check_late_input(self) -> None:
+        """The holds that ended in a resume since the last look: one entry for them all."""
+        holds = self.runner.holds()
+        new = holds.resumed - self._holds_listed
+        if new <= 0:
+            return
+        self._holds_listed = holds.resumed
+        self._fault(
+            FaultKind.MCU_LATE_INPUT,
+            f"MCU state frames late: {new} hold(s) of PWM 0 past {self.cfg.mcu.link_timeout_ms:g} ms "
+            f"(longest since start {holds.longest_s * 1e3:.1f} ms); the MCU sent every frame on time "
+            "(no gap in its stamps): the host's serial input was delayed",
+            "not latched: control resumed from the measurement (status link.late_input_holds)",
+        )
+
     def _check_control_fault(self) -> None:
+        self._check_late_input()
         code = self.runner.fault_code
         if code and self.state not in (S.FAULT, S.STOPPING):
             kind, cause, action = LOOP_FAULTS.get(
                 code, (FaultKind.CONTROL, f"control thread fault {int(code)}", "safe state: PWM 0")
             )
             after = None
-            if code == LoopFault.STALE:
+            if code in (LoopFault.STALE, LoopFault.GAP):
+                m = self.cfg.mcu
                 after = round(self.runner.fault_after_measurement_s * 1e3, 2)
-                cause += f": none for {self.cfg.mcu.link_timeout_ms:g} ms"
+                if code == LoopFault.STALE:
+                    cause += f": none for {m.link_lost_ms if m.late_input_hold else m.link_timeout_ms:g} ms"
                 action += f" {after:.1f} ms after the last frame"
             self.runner.inject_overrun(0)  # an injected overrun ends with its fault
             self._enter_fault(kind, cause, action, after)
@@ -76,7 +99,7 @@ class FaultPolicy(RecordingControl):
         if up:
             self.mark("mcu_link", up=True)
             return
-        self._check_control_fault()  # the control thread's stale check latched first (40 < 50 ms)
+        self._check_control_fault()  # the control thread's stale check holds PWM 0 since 40 ms
         cause = f"MCU link lost: no frame for {self.cfg.mcu.link_lost_ms:g} ms"
         if self.state not in (S.FAULT, S.STOPPING):
             self._enter_fault(FaultKind.MCU_LINK_LOST, cause, "safe state: PWM 0")

@@ -18,7 +18,8 @@ from tvsd.control.runner import LoopFault
 
 class FaultKind(enum.StrEnum):
     CONTROL_OVERRUN = "control_overrun"  # the control thread's late-tick streak latched PWM 0
-    MCU_STALE = "mcu_stale"  # the control thread saw no state frame for mcu.link_timeout_ms
+    MCU_STALE = "mcu_stale"  # no state frame for mcu.link_lost_ms, or they came back with a gap
+    MCU_LATE_INPUT = "mcu_late_input"  # late but complete state frames: PWM 0 held, then resumed
     MCU_LINK_LOST = "mcu_link_lost"  # the link saw no frame at all for mcu.link_lost_ms
     MCU_WATCHDOG = "mcu_watchdog"  # the firmware's heartbeat watchdog cut PWM and laser
     MCU_FAULT = "mcu_fault"  # the firmware reported a fault of its own
@@ -40,6 +41,12 @@ LOOP_FAULTS = {
     LoopFault.STALE: (
         FaultKind.MCU_STALE,
         "MCU state frames stopped",
+        "safe state: PWM 0 from the control thread",
+    ),
+    LoopFault.GAP: (
+        FaultKind.MCU_STALE,
+        "MCU state frames stopped, and came back with a gap (frames missing, or the MCU's "
+        "clock jumped: it stopped or restarted)",
         "safe state: PWM 0 from the control thread",
     ),
 }

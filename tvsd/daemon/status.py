@@ -99,6 +99,7 @@ class Status:
         p99 = self.loop.jitter_p99_us
         p99 = p99 if math.isfinite(p99 or math.nan) else 0.0  # no tick yet
         stale = " STALE" if self.stale else ""
+        stale += " HELD" if self.link.get("input_held") else ""  # PWM 0 for late input (not latched)
         return (
             f"{self.state:9s} {self.rps:6.2f} rev/s{stale}  jitter p99 {p99:6.1f} µs  "
             f"missed {self.loop.missed_ticks:4d}  points/s {self.points.per_s:5.1f}  "

@@ -27,6 +27,9 @@ class StateSample:
     # v1 flagged samples placed by guess after a loss; v2's 32-bit stamps place every one from
     # the MCU's own count, so it stays True (kept for the consumers that read it)
     exact: bool = True
+    # no frame lost (by SEQ, of any kind) and no link outage since the previous state frame: the
+    # host's late-input hold checks the MCU sent every frame (tvsd.control.hold)
+    chained: bool = True
 
 
 class TickPlacer:
@@ -90,4 +93,4 @@ class TickPlacer:
         self._state_ticks, self._encoder, self._chain_lost = ticks, enc, self._rx_lost
         if self._ticks is None or ticks > self._ticks:
             self._ticks, self._ticks_host = ticks, now
-        self._deliver(StateSample(ticks, enc, now, True))
+        self._deliver(StateSample(ticks, enc, now, True, chained and prev is not None))

@@ -4,7 +4,9 @@ Three layers of safety hang on its times (tvsd/daemon/drive_link.py): the contro
 PWM 0 once the newest state frame is `link_timeout_ms` old; the link reports the loss after
 `link_lost_ms` without any frame; the firmware cuts PWM and laser `watchdog_ms` after the last
 heartbeat (heartbeats go every watchdog_ms / 4, so an event-loop stall shorter than three
-quarters of it is harmless).
+quarters of it is harmless). Between the first two the hold is not latched (`late_input_hold`,
+tvsd.control.hold): frames that come late but complete — the host's tty input was delayed, the
+MCU sent them on time — resume control; a gap in them, or none by `link_lost_ms`, latches.
 
 `board` names the MCU board (firmware/board/<name>): identify must report it, and it sets how
 many state + PWM exchanges per second the daemon runs (`exchange_hz`): what each board carries
@@ -49,7 +51,16 @@ class McuSettings:
         40.0, doc="no state frame this long → the control thread holds PWM 0", unit="ms", gt=0, le=1000
     )
     link_lost_ms: float = option(
-        50.0, doc="no frame at all this long → the link reports the loss (a fault)", unit="ms", gt=0, le=10000
+        250.0,
+        doc="no frame at all this long → the link is lost (a fault; the late-input hold's bound)",
+        unit="ms",
+        gt=0,
+        le=10000,
+    )
+    late_input_hold: bool = option(
+        True,
+        doc="at link_timeout_ms hold PWM 0 unlatched; resume if the frames that follow show the MCU "
+        "sent every one (false: latch at once)",
     )
     identify_timeout_ms: float = option(
         500.0, doc="the MCU answers identify within this (3 tries share it)", unit="ms", gt=0
