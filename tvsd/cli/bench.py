@@ -108,7 +108,8 @@ def _soak(args: argparse.Namespace) -> dict[str, Any]:
     from tvsd.daemon.soak import soak
 
     with progress_bar(f"soak {args.seconds:g} s", args.seconds) as advance:
-        return soak(args.seconds, clients=args.clients, progress=advance)
+        # --clients 0: the CPU hogs alone (no batches either), the test_soak "alone" load
+        return soak(args.seconds, clients=args.clients, batches=args.clients > 0, progress=advance)
 
 
 # name -> function returning a flat dict of figures; one line per benchmark group.
@@ -191,7 +192,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         type=_clients,
         default=50,
         metavar="N",
-        help="soak: RPC clients polling status (default 50)",
+        help="soak: RPC clients polling status (default 50; 0: the CPU hogs alone, no batches)",
     )
     p.set_defaults(func=_run)
 
@@ -219,7 +220,7 @@ def _whole(low: int, high: int, what: str) -> Callable[[str], int]:
 
 
 _positive_int = _whole(1, 2**62, "a whole number of frames >= 1")
-_clients = _whole(1, 1000, "a number of clients 1..1000")
+_clients = _whole(0, 1000, "a number of clients 0..1000")
 _cases = _whole(1, 100_000, "a number of matrix cases >= 1")
 _workers = _whole(1, 256, "a number of worker processes 1..256")
 
