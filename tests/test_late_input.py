@@ -277,3 +277,54 @@ def test_without_the_hold_a_stale_measurement_latches_at_once(setup: object) -> 
         assert r.latched_after_measurement_s == r.fault_after_measurement_s
     finally:
         r.stop(timeout=2.0)
+
+
+class _Rpc:
+    def __init__(self) -> None:
+        self.published: list[tuple[str, dict[str, object]]] = []
+
+    def publish(self, topic: str, record: dict[str, object]) -> None:
+        self.published.append((topic, record))
+
+
+def test_the_daemon_lists_the_holds_unlatched_and_latches_the_gap(setup: object) -> None:
+    """The fault policy on a real runner's hold: the resumed hold is listed once (kind
+    `mcu_late_input`, not latched: the daemon stays scanning), the gap after it latches the safe
+    state as `mcu_stale` naming the gap, PWM 0 dated from the hold's start."""
+    from tvsd.daemon.app import Daemon
+    from tvsd.daemon.faults import FaultLog
+    from tvsd.daemon.state import DaemonState, StateMachine
+
+    r = Runner(setup, sil=False)  # type: ignore[arg-type]
+    r.stale_after(STALE_S, 5.0)
+    d = object.__new__(Daemon)
+    d.cfg, d.runner, d.faults, d.rpc, d.recording = load_config(), r, FaultLog(10), _Rpc(), None
+    d.identification, d.target_rps, d.scan = None, 0.0, None
+    d._state = StateMachine()
+    d._state.state = DaemonState.SCANNING
+    r.start()
+    try:
+        wait_for(lambda: r.is_running, 60.0, "the kernel")
+        chain = time.monotonic_ns()
+        r.position(0.0)
+        _feed_until_held(r, chain)
+        now = time.monotonic_ns()
+        r.measured(0.0, 0.0, now, due_ns=now, chain_ns=chain)
+        wait_for(lambda: r.holds().resumed, 5.0, "the resume")
+        d._check_control_fault()
+        d._check_control_fault()  # the same hold is listed once
+        assert d.state == DaemonState.SCANNING
+        assert d.faults.counts() == {"mcu_late_input": 1}
+        (entry,) = d.faults.entries()
+        assert "late" in entry.cause and "not latched" in entry.action
+        _feed_until_held(r, chain)
+        now = time.monotonic_ns()
+        r.measured(0.0, 0.0, now, due_ns=now, chain_ns=now)
+        wait_for(lambda: r.fault, 5.0, "the gap's latch")
+        d._check_control_fault()
+        assert d.state == DaemonState.FAULT
+        assert d.faults.counts() == {"mcu_late_input": 1, "mcu_stale": 1}
+        stale = d.faults.entries()[-1]
+        assert "gap" in stale.cause and stale.safe_after_ms is not None and stale.safe_after_ms > 40.0
+    finally:
+        r.stop(timeout=2.0)
