@@ -124,7 +124,10 @@ def render(status: Mapping[str, Any] | None, history: list[tuple[float, float, f
     imu = status.get("imu", {})
     grid.add_row("imu", f"{imu.get('state')}" + (f" ({imu['detail']})" if imu.get("detail") else ""))
     link = status.get("link", {})
-    grid.add_row("link", f"{link.get('state')} ({link.get('source', '?')})")
+    # a late-input hold: PWM 0, not latched, while the MCU's frames are late (tvsd.control.hold)
+    held = Text(" HELD: PWM 0, input late", style="bold yellow") if link.get("input_held") else ""
+    holds = f", {link['late_input_holds']} late-input holds" if link.get("late_input_holds") else ""
+    grid.add_row("link", Text.assemble(f"{link.get('state')} ({link.get('source', '?')}){holds}", held))
     pts = status.get("points", {})
     lat = f", latency p50 {pts['latency_p50_ms']:.0f} ms" if "latency_p50_ms" in pts else ""
     counts = f"{pts.get('total', 0)} total, {pts.get('no_imu', 0)} no_imu"
