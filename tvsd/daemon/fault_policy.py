@@ -17,6 +17,9 @@ The IMU's faults come with its events (tvsd.daemon.device_events).
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+
 from tvsd.control.runner import LoopFault
 from tvsd.daemon.faults import LOOP_FAULTS, FaultEntry, FaultKind
 from tvsd.daemon.recording_control import RecordingControl
@@ -24,6 +27,7 @@ from tvsd.daemon.state import DaemonState
 from tvsd.hw.mcu.link import FaultEvent
 
 S = DaemonState
+HOLD_LATCH_LOOK_S = 0.02  # after the link's loss, when to look for the control thread's latch
 
 
 class FaultPolicy(RecordingControl):
@@ -101,6 +105,15 @@ class FaultPolicy(RecordingControl):
             return
         self._check_control_fault()  # the control thread's stale check holds PWM 0 since 40 ms
         cause = f"MCU link lost: no frame for {self.cfg.mcu.link_lost_ms:g} ms"
+        if self.runner.held and self.state not in (S.FAULT, S.STOPPING):
+            # The control thread latches its hold at this same bound (tvsd.control.hold), a tick
+            # from now if not yet: its verdict (mcu_stale, with when PWM 0 began) is the fault.
+            self._fault(
+                FaultKind.MCU_LINK_LOST, cause, "PWM 0 held by the control thread, which latches it"
+            )
+            with contextlib.suppress(RuntimeError):  # no loop: the next status period looks
+                asyncio.get_running_loop().call_later(HOLD_LATCH_LOOK_S, self._check_control_fault)
+            return
         if self.state not in (S.FAULT, S.STOPPING):
             self._enter_fault(FaultKind.MCU_LINK_LOST, cause, "safe state: PWM 0")
         else:
