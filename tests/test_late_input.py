@@ -1,4 +1,4 @@
-"""Late MCU input is held, not latched (issue 13; tvsd.control.hold, DriveLink._chain).
+"""Late MCU input is held, not latched (issue 13; tvsd.control.hold, tvsd.daemon.frame_chain).
 
 On Linux a tty's input waits for the kernel's flip-buffer worker, which CPU load delays by tens
 of ms: the MCU's state frames then arrive late, in a burst, although it sent each on time. At the
@@ -30,7 +30,9 @@ from conftest import until, wait_for
 from tvsd.config import load_config
 from tvsd.control.runner import LoopFault, Runner
 from tvsd.daemon.drive_link import DriveLink
+from tvsd.daemon.frame_chain import DUE_RATE_MARGIN, FrameChain
 from tvsd.hw.mcu.framing import FrameDecoder, encode_frame
+from tvsd.hw.mcu.placement import StateSample
 from tvsd.hw.mcu.spec import CONTROL_TICK_HZ, load_spec
 
 SPEC = load_spec()
@@ -328,3 +330,35 @@ def test_the_daemon_lists_the_holds_unlatched_and_latches_the_gap(setup: object)
         assert "gap" in stale.cause and stale.safe_after_ms is not None and stale.safe_after_ms > 40.0
     finally:
         r.stop(timeout=2.0)
+
+
+def test_the_frame_chain_dates_late_frames_by_the_mcus_stamps_and_breaks_on_any_gap() -> None:
+    """2 kHz frames (state_div 5 at 16 MHz: 8000 ticks apart). On time: due = arrival. A burst 60
+    ms late: each due one period after the previous, so the input's lateness is the 60 ms. A
+    dropped MCU tick (8000 + 1600), a lost frame (`chained` False), a restart (the stamp back at
+    0): each starts a new chain. A slow MCU clock (-500 ppm) never leaves `due` behind the
+    arrivals (the margin is 1000 ppm)."""
+    c, period_ns, ms = FrameChain(), 500_000, 1_000_000
+
+    def feed(ticks: int, arrival_ns: int, chained: bool = True) -> int:
+        return c.due(StateSample(ticks, 0, arrival_ns / 1e9, True, chained), arrival_ns, HZ, 5)
+
+    for k in range(10):
+        assert feed(8000 * k, 10**9 + k * period_ns) == 10**9 + k * period_ns
+    first = c.chain_ns
+    assert c.breaks == 1 and first == 10**9
+    burst = 10**9 + 9 * period_ns + 60 * ms
+    dues = [feed(8000 * k, burst) for k in range(10, 130)]  # 60 ms of frames, all at once
+    assert dues[0] == 10**9 + 10 * period_ns + round(period_ns * DUE_RATE_MARGIN)
+    assert c.chain_ns == first and c.breaks == 1  # every frame came: one chain
+    assert 59.4 * ms < c.late_max_ns < 60.1 * ms
+    t = burst + period_ns
+    for ticks, chained in ((8000 * 130 + 1600, True), (8000 * 131 + 1600, False), (0, True)):
+        feed(ticks, t, chained)
+        assert c.chain_ns == t  # a new chain from this frame
+        t += period_ns
+    assert c.breaks == 4
+    slow = FrameChain()
+    for k in range(2000):  # 1 s of frames from a clock 500 ppm slow: arrivals spread by 1.0005
+        a = round(k * period_ns * 1.0005)
+        assert slow.due(StateSample(8000 * k, 0, a / 1e9, True, True), a, HZ, 5) == a

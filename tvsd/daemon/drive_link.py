@@ -21,7 +21,7 @@ Safety, in three layers: the control thread holds PWM 0 once the newest state fr
 cfg.mcu.link_timeout_ms (40 ms); it latches that (LoopFault.STALE) if no frame reaches the present
 within cfg.mcu.link_lost_ms (250 ms), when the link reports the loss too (on_link(False)), or at
 once if the frames that come show a gap (LoopFault.GAP); complete but late frames resume control
-(tvsd.control.hold, `_chain` here); the firmware cuts PWM and laser watchdog_ms after the last
+(tvsd.control.hold, tvsd.daemon.frame_chain); the firmware cuts PWM and laser watchdog_ms after the last
 heartbeat. Heartbeats go every watchdog_ms / 4 from the control
 kernel itself (Runner.attach_link, tvsd.control.link_tx: no GIL needed, so no Python code holding
 it can starve them), and PWM 0 behind each while the loop holds its safe state: a dead control
@@ -46,6 +46,7 @@ import numpy as np
 
 from tvsd.config import Config
 from tvsd.control.runner import Runner
+from tvsd.daemon.frame_chain import FrameChain
 from tvsd.errors import ConfigError, DeviceError, UsageError
 from tvsd.hw.mcu.io_thread import IO_THREAD_PRIORITY
 from tvsd.hw.mcu.link import FaultEvent, McuLink, PulseEvent, StateSample
@@ -61,10 +62,6 @@ SENT_HISTORY_S = 0.8  # PWM frames kept, in s of exchanges (the point stream loo
 SENT_SLACK = 64  # of them not read back: the I/O thread may be overwriting them meanwhile
 SIL_TARGET_RANGE_M = 2.0  # the SIL scene: a surface 2 m from the PL (tvsd/sim/scene.py)
 SIL_FAULTS = ("link_loss", "link_restore")
-# A state frame's due time runs this much faster than the MCU's nominal clock (a crystal is within
-# 100 ppm): over a 250 ms hold an error of 0.25 ms, and an MCU clock that is slow cannot make
-# frames on time look late.
-DUE_RATE_MARGIN = 1e-3
 FIRMWARE_STATS_PERIOD_S = 1.0  # how often the status's firmware counters are asked for (27 B back)
 FIRMWARE_COUNTERS = ("rx_overflows", "ticks_dropped", "watchdog_expiries")
 
@@ -108,13 +105,7 @@ class DriveLink:
         self._ticks = np.zeros(n, dtype=np.int64)  # ring of the last frames: MCU ticks, angle
         self._phi = np.zeros(n)
         self._frames = 0
-        # the chain of state frames the late-input hold judges (tvsd.control.hold): the MCU ticks
-        # of the previous frame, when the newest was due by the MCU's stamps, the chain's start
-        self._prev_ticks: int | None = None
-        self._due_ns = 0
-        self._chain_ns = 0
-        self.chain_breaks = 0
-        self.input_late_max_ns = 0  # the latest a state frame arrived after it was due
+        self.chain = FrameChain()  # the state frames' due times, for the late-input hold
         self._sent_n = math.ceil(SENT_HISTORY_S * CONTROL_TICK_HZ / self.state_div)  # 8000 at 10 kHz
         self._sent_host = np.zeros(self._sent_n)  # ring of the PWM frames sent: host time, volts
         self._sent_volts = np.zeros(self._sent_n)
@@ -220,33 +211,10 @@ class DriveLink:
         sampled = self.to_host(s.mcu_ticks) if s.exact else math.nan
         sample_ns = round(sampled * 1e9) if math.isfinite(sampled) else None
         arrival = round(s.host_time * 1e9)
-        due = self._chain(s, arrival)
-        self.runner.measured(phi, omega, arrival, sample_ns, due_ns=due, chain_ns=self._chain_ns)
+        due = self.chain.due(s, arrival, self.clock_hz, self.state_div)
+        self.runner.measured(phi, omega, arrival, sample_ns, due_ns=due, chain_ns=self.chain.chain_ns)
         self.last_state_host = s.host_time
         self._pwm_due = True
-
-    def _chain(self, s: StateSample, arrival: int) -> int:
-        """When this state frame was due (ns, ≤ its arrival): by the MCU's own stamps, one state
-        period after the previous frame's due time, if the frame continues the chain — nothing
-        lost by SEQ since the previous one (`chained`) and its stamp one state period of the
-        MCU's clock after the previous frame's, within half a control tick (a dropped MCU tick,
-        a restart, a stall all break it). A late burst's frames are thus due when the MCU sent
-        them; the chain (`_chain_ns`, the arrival of its first frame) tells the control thread's
-        hold whether every frame came (tvsd.control.hold)."""
-        prev, self._prev_ticks = self._prev_ticks, s.mcu_ticks
-        tick = self.clock_hz / CONTROL_TICK_HZ
-        if s.chained and prev is not None and abs(s.mcu_ticks - prev - self.state_div * tick) * 2 < tick:
-            # a slow MCU clock must not leave `due` behind the arrivals for good: its period is
-            # taken DUE_RATE_MARGIN long, and an on-time frame brings `due` back to its arrival
-            step = (s.mcu_ticks - prev) * 1e9 / self.clock_hz * (1.0 + DUE_RATE_MARGIN)
-            due = min(arrival, self._due_ns + round(step))
-        else:
-            due = self._chain_ns = arrival
-            self.chain_breaks += 1
-        self._due_ns = due
-        if arrival - due > self.input_late_max_ns:
-            self.input_late_max_ns = arrival - due
-        return due
 
     def _send_pwm(self) -> None:
         """After a batch of states (on_batch): one PWM frame for all of them. A late thread reads
@@ -386,8 +354,8 @@ class DriveLink:
             "late_input_holds": h.resumed,
             "late_input_hold_ms_total": round(h.total_s * 1e3, 2),
             "late_input_hold_ms_max": round(h.longest_s * 1e3, 2),
-            "input_late_max_ms": round(self.input_late_max_ns / 1e6, 2),
-            "frame_chain_breaks": self.chain_breaks,
+            "input_late_max_ms": round(self.chain.late_max_ns / 1e6, 2),
+            "frame_chain_breaks": self.chain.breaks,
         }
 
     def _kernel_heartbeats(self) -> dict[str, Any]:
