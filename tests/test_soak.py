@@ -51,7 +51,7 @@ def test_a_short_soak_under_cpu_hogs_has_no_fault_and_no_watchdog_expiry() -> No
 @pytest.mark.xfail(
     strict=False,
     reason="issue 13, open: late input is now held, not latched (README, Soak: 'Late input is "
-    "held'): 2 of 3 runs passed; the third failed on a firmware watchdog expiry counted while the "
+    "held'): 4 of 5 runs passed; one failed on a firmware watchdog expiry counted while the "
     "daemon spun up, the control loop once 293 ms late (the host stalled: the SIL's and the "
     "machine's, not the hold). Before: 6 of 10, the failures the pty's late frames (mcu_stale) and "
     "whole-machine stalls.",
