@@ -134,7 +134,7 @@ def replace_section(text: str, name: str, body: str) -> str:
 RELAXED_FAILSAFE = {
     "  watchdog_ms: 50 ": "  watchdog_ms: 1000 ",
     "  link_timeout_ms: 40 ": "  link_timeout_ms: 800 ",
-    "  link_lost_ms: 250 ": "  link_lost_ms: 1000 ",
+    "  link_lost_ms: 500 ": "  link_lost_ms: 1000 ",
     "  lost_margin_s: 0.1 ": "  lost_margin_s: 1.0 ",
 }
 

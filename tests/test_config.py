@@ -192,7 +192,7 @@ def test_the_daemons_times_and_limits_come_from_the_config(tmp_path):
     assert (d.status_period_s, d.drain_period_s, d.fault_window_s, d.home_timeout_s, d.max_rps) == (
         1.0, 0.02, 2.0, 30.0, 60.0
     )  # fmt: skip
-    assert cfg.mcu.link_lost_ms == 250.0 and cfg.mcu.late_input_hold
+    assert cfg.mcu.link_lost_ms == 500.0 and cfg.mcu.late_input_hold
     assert cfg.can.handler_timeout_s == 2.0 and cfg.imu.calibrate_max_s == 60
     data = _base()
     data["daemon"] = {"max_rps": 0}

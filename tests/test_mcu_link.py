@@ -500,7 +500,7 @@ def test_settings_are_checked() -> None:
     with pytest.raises(UsageError, match="tx_buffer_bytes: must be at least 41 B"):
         McuSettings(port="/dev/x", tx_buffer_bytes=10)  # below one frame
     with pytest.raises(UsageError, match="link_timeout_ms: must be at most link_lost_ms"):
-        McuSettings(port="/dev/x", link_timeout_ms=300)
+        McuSettings(port="/dev/x", link_timeout_ms=600)
 
 
 def test_states_before_the_first_ack_are_placed_at_once() -> None:

@@ -19,7 +19,7 @@ tick (0.1 ms) behind at most, and the 10 kHz kernel never waits for it.
 
 Safety, in three layers: the control thread holds PWM 0 once the newest state frame is older than
 cfg.mcu.link_timeout_ms (40 ms); it latches that (LoopFault.STALE) if no frame reaches the present
-within cfg.mcu.link_lost_ms (250 ms), when the link reports the loss too (on_link(False)), or at
+within cfg.mcu.link_lost_ms (500 ms), when the link reports the loss too (on_link(False)), or at
 once if the frames that come show a gap (LoopFault.GAP); complete but late frames resume control
 (tvsd.control.hold, tvsd.daemon.frame_chain); the firmware cuts PWM and laser watchdog_ms after the last
 heartbeat. Heartbeats go every watchdog_ms / 4 from the control

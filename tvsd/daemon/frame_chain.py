@@ -16,7 +16,7 @@ from tvsd.hw.mcu.placement import StateSample
 from tvsd.hw.mcu.spec import CONTROL_TICK_HZ
 
 # A frame's due time runs this much faster than the MCU's nominal clock (a crystal is within
-# 100 ppm): over a 250 ms hold an error of 0.25 ms, and an MCU clock that is slow cannot make
+# 100 ppm): over a 500 ms hold an error of 0.5 ms, and an MCU clock that is slow cannot make
 # frames on time look late (an on-time frame brings `due` back to its arrival).
 DUE_RATE_MARGIN = 1e-3
 

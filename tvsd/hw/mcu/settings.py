@@ -51,7 +51,7 @@ class McuSettings:
         40.0, doc="no state frame this long → the control thread holds PWM 0", unit="ms", gt=0, le=1000
     )
     link_lost_ms: float = option(
-        250.0,
+        500.0,
         doc="no frame at all this long → the link is lost (a fault; the late-input hold's bound)",
         unit="ms",
         gt=0,
