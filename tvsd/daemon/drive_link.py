@@ -219,13 +219,29 @@ class DriveLink:
         if not self._pwm_due or link is None:
             return
         self._pwm_due = False
-        duty = max(-1.0, min(1.0, self.runner.command * self.duty_per_volt))
+        duty = max(-1.0, min(1.0, self._exchange_mean() * self.duty_per_volt))
         with self._pwm_lock:
             if not self._answering or not link.send_pwm(duty):
                 return
         i = self._sent % self._sent_n
         self._sent_host[i], self._sent_volts[i] = time.monotonic(), duty / self.duty_per_volt
         self._sent += 1
+
+    def _exchange_mean(self) -> float:
+        """The law's command averaged over the last exchange period (`state_div` control ticks).
+
+        The law runs at 10 kHz and the PWM frames go at the exchange rate (2 kHz on the ATmega):
+        the last tick's value alone aliases the command's tick-to-tick swing (each new speed
+        estimate moves Gd·tanh(ε̇)) into every band. On the SIL daemon's identify runs the voltage the
+        drive applied then differed from the recording's u (the 1 ms mean of the ticks) by 2.1 V
+        rms below 20 Hz, and the doctor named a clip, a resonance or negative damping for it; the
+        mean (a box-car decimation, 0.2 ms of lag at 2 kHz) made it 0.10 V (README, model doctor
+        step 8). A command of exactly 0 is the loop's safe state (fault, idle): sent as 0 at once,
+        not averaged with the ticks before it."""
+        if self.runner.command == 0.0:
+            return 0.0
+        ticks = self.runner.recent_ticks(self.state_div)
+        return float(ticks["u"].mean()) if len(ticks) else 0.0
 
     def sent_volts(self, t_mcu: np.ndarray) -> np.ndarray:
         """The motor voltage commanded at MCU times: each PWM frame's from when it was sent (its
