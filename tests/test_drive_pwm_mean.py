@@ -79,3 +79,34 @@ def test_a_zero_command_is_sent_at_once() -> None:
     """The loop's safe state (a fault, idle) commands exactly 0: the next frame is 0, not the mean
     of the ticks before it."""
     assert _sent_volts([9.0, 9.0, 9.0, 9.0, 0.0], last_frame_tick=0) == 0.0
+
+
+def test_the_frames_sent_are_recorded_on_the_loops_clock(tmp_path) -> None:
+    """`DriveLink.sent_since` hands the frames sent to the recording's `pwm` channel (t on the
+    loop's clock: time.monotonic less the runner's start); frames sent before the recording's
+    first drain are not recorded, and none twice."""
+    from tvsd.daemon.session_recording import SessionRecording
+    from tvsd.recording.reader import open_recording
+
+    cfg = load_config()
+    runner = _Runner([3.0] * 10)
+    drive = DriveLink(cfg, runner, "hardware", on_pulse=print, on_link=print, on_fault=print)  # type: ignore[arg-type]
+    drive.link = _Link()  # type: ignore[assignment]
+
+    def frame() -> None:
+        drive._pwm_due = True
+        drive._send_pwm()
+
+    frame()  # before the recording: not in it
+    start_s = 5.0
+    session = SessionRecording(tmp_path / "rec", "plant: {}\n")
+    session.pwm_frames(*drive.sent_since(0), start_ns=round(start_s * 1e9))
+    frame()
+    frame()
+    host, volts, end = drive.sent_since(0)
+    assert end == 3 and volts.tolist() == pytest.approx([3.0] * 3)
+    session.pwm_frames(*drive.sent_since(1), start_ns=round(start_s * 1e9))
+    session.pwm_frames(*drive.sent_since(3), start_ns=round(start_s * 1e9))  # nothing new
+    session.close()
+    rows = open_recording(tmp_path / "rec").channels["pwm"]
+    np.testing.assert_allclose(rows["t"], host[1:] - start_s, atol=1e-6)

@@ -251,6 +251,15 @@ class DriveLink:
             return float(self.runner.command)
         return float(self.runner.recent_ticks(n)["u"].mean())
 
+    def sent_since(self, seq: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """The PWM frames sent from number `seq` on, oldest first: host times (time.monotonic),
+        volts, and the number to ask from next time. Frames the ring overwrote before the call
+        (more than 0.8 s of them, less the slack the I/O thread may be writing) are skipped."""
+        end = self._sent  # one read: rows below it are written
+        first = min(max(seq, end - (self._sent_n - SENT_SLACK)), end)
+        idx = np.arange(first, end) % self._sent_n
+        return self._sent_host[idx], self._sent_volts[idx], end
+
     def sent_volts(self, t_mcu: np.ndarray) -> np.ndarray:
         """The motor voltage commanded at MCU times: each PWM frame's from when it was sent (its
         ~0.1 ms on the line and in the MCU's parser not counted) until the next; 0 before the
