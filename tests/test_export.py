@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from tvsd.cli import main as cli
-from tvsd.daemon.session_recording import REFERENCE_FIELDS
+from tvsd.daemon.session_recording import PWM_FIELDS, REFERENCE_FIELDS
 from tvsd.recording.csvfile import read as read_csv
 from tvsd.recording.format import LOOP_FIELDS
 from tvsd.recording.writer import Recorder
@@ -166,3 +166,27 @@ def test_export_of_a_segment_file_never_writes_over_it(tmp_path, monkeypatch, ca
     before = seg.read_bytes()
     status, _, err = _export(monkeypatch, capsys, seg, seg)
     assert status == 2 and "is the recording" in err and seg.read_bytes() == before, err
+
+
+def test_u_is_what_the_pwm_frames_told_the_drive(tmp_path, monkeypatch, capsys):
+    """With a `pwm` channel (the frames the daemon sent: loop time, volts), u is their held value
+    averaged over each 1 ms bin (bins end at their t; a frame holds until the next), and the law's
+    1 ms mean moves to u_law. Frames at 2 kHz alternating 4 V and 8 V give 6 V in every bin they
+    cover, whatever the law's mean said; a bin that began before the first frame keeps the law's
+    value; after the last frame its 8 V holds (the MCU keeps a duty until the next frame)."""
+    k = np.arange(0, 300)
+    with Recorder(tmp_path / "rec", CONFIG) as rec:
+        rec.channel("loop", list(LOOP_FIELDS)).append(_rows(k))
+        rec.channel("reference", list(REFERENCE_FIELDS)).append(_reference(k))
+        j = np.arange(200)
+        volts = np.where(j % 2 == 0, 4.0, 8.0)
+        rec.channel("pwm", list(PWM_FIELDS)).append({"t": T0 + 0.0502 + j * 0.0005, "volts": volts})
+    status, _, err = _export(monkeypatch, capsys, tmp_path / "rec", tmp_path / "o.csv")
+    assert status == 0, err
+    csv = read_csv(tmp_path / "o.csv")
+    law = _rows(k)["u"]
+    np.testing.assert_allclose(csv.extra["u_law"], law, atol=1e-8)
+    np.testing.assert_allclose(csv.u[:51], law[:51], atol=1e-8)  # bin 50 ends at 0.050 s: before the first
+    np.testing.assert_allclose(csv.u[52:150], 6.0, atol=1e-8)
+    np.testing.assert_allclose(csv.u[151:], 8.0, atol=1e-8)  # the last frame, sent at 0.1497 s
+    assert "PWM frames" in csv.meta["u_source"]

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import math
+from collections import deque
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -184,3 +185,21 @@ def test_a_fast_winding_is_integrated_stably() -> None:
     got = mp.steady_state(fast, 6.0, seconds=2.0, vibration=OFF)
     assert np.all(np.isfinite(got))
     assert got[S_OMEGA] == pytest.approx(ref[S_OMEGA], rel=1e-3)
+
+
+def test_late_frames_share_the_chunk_in_their_order() -> None:
+    """Frames that reached the plant after their chunk's start (the pty hands each millisecond's
+    frames over at once: two per 1 ms chunk at the ATmega's 2 kHz) each hold an equal share of the
+    next chunk, in order, so the volts the motor integrates are the frames' mean, not the last
+    one's; a frame on time later in the chunk takes over from its step on."""
+    cfg = load_config()
+    with bridge(cfg, vibration=OFF) as plant:
+        plant.mcu.pwm_changes = lambda: ([], 0.0)  # type: ignore[method-assign]  # no new frames
+        volts, n, dt, t0 = plant.mcu.drive_volts, plant._n, plant.setup.dt, 1.0
+        assert n == 10
+        plant._pwm_pending = deque([(t0 - 0.4e-3, 0.25), (t0 - 0.4e-3, 0.75)])
+        plant._chunk_volts(t0)
+        assert plant._u.tolist() == [0.25 * volts] * 5 + [0.75 * volts] * 5
+        plant._pwm_pending = deque([(t0 - 0.2e-3, 0.5), (t0 + 7 * dt, -0.5)])
+        plant._chunk_volts(t0)
+        assert plant._u.tolist() == [0.5 * volts] * 7 + [-0.5 * volts] * 3

@@ -6,7 +6,9 @@ filled and flagged, the controller's reference joined, fault marks placed), and 
 
 Columns: t, u, omega, phi, then omega_ref, phi_ref, u_ff (the daemon's reference), u_exc (the
 voltage `tvsctl identify` added after the law, from the recording's `excitation` channel: the
-doctor's instrument; 0 outside the run; only when the recording holds one), gap (1: a
+doctor's instrument; 0 outside the run; only when the recording holds one), u_law (the control
+law's command, the 1 ms mean of its 10 kHz ticks, when `u` is from the `pwm` channel: the frames
+the daemon sent, held, averaged per sample, which is what the drive was told to apply), gap (1: a
 sample the recording lacked, filled by linear interpolation), fault (faults marked in that sample),
 and any other numeric field of the channel. Metadata lines: the source, ``u_unit: V`` (the daemon
 commands volts), the gaps (how many, the missing samples, the first ones listed), the faults (one
@@ -39,6 +41,9 @@ LISTED_GAPS = 50  # gaps listed one by one in the metadata; more are only counte
 U_UNIT = "V"  # the daemon's command is the drive voltage (docs/architecture.md, u_unit)
 EXCITATION_CHANNEL = "excitation"  # what identify played (tvsd/daemon/session_recording.py)
 U_EXC = "u_exc"  # its voltage, per sample: the doctor's instrument in closed loop
+PWM_CHANNEL = "pwm"  # the PWM frames the daemon sent (tvsd/daemon/session_recording.py)
+U_SOURCE = "the PWM frames sent to the drive, held (u_law: the control law's 1 ms mean)"
+U_LAW = "u_law"  # the control law's command, the 1 ms mean of its ticks (u before the pwm channel)
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -85,6 +90,11 @@ def _run(args: argparse.Namespace) -> int:
 
         return export_mcap(rec, args.rec, out)
     table = loop_table(rec, args.channel, args.start, args.end, strict=args.strict)
+    sent = args.channel == LOOP_CHANNEL and len(rec.channels.get(PWM_CHANNEL, ())) > 0
+    if sent:
+        t_first = float(rec.channels[args.channel]["t"][0]) + float(table.meta["start_s"])  # type: ignore[arg-type]
+        table.columns[U_LAW] = table.columns["u"]
+        table.columns["u"] = sent_column(rec.channels[PWM_CHANNEL], t_first, table, table.columns[U_LAW])
     if args.channel == LOOP_CHANNEL and EXCITATION_CHANNEL in rec.channels:
         t_first = float(rec.channels[args.channel]["t"][0]) + float(table.meta["start_s"])  # type: ignore[arg-type]
         rows = played(rec.channels[EXCITATION_CHANNEL], rec.marks)
@@ -102,6 +112,11 @@ def _run(args: argparse.Namespace) -> int:
         "started_utc": rec.header.get("started_utc", "unknown"),
         "channel": args.channel,
         "u_unit": U_UNIT,
+        **(
+            {"u_source": "the PWM frames sent to the drive, held (u_law: the control law's mean)"}
+            if sent
+            else {}
+        ),
         **table.meta,
     }
     if rec.stats is not None:
@@ -150,7 +165,7 @@ def _fault_meta(table: Table) -> dict[str, object]:
 def write_csv(path: Path, table: Table, meta: dict[str, object]) -> None:
     cols = dict(table.columns)
     u, omega, phi = cols.pop("u"), cols.pop("omega"), cols.pop("phi", None)
-    order = ("omega_ref", "phi_ref", "u_ff", U_EXC, "gap", "fault")
+    order = ("omega_ref", "phi_ref", "u_ff", U_EXC, U_LAW, "gap", "fault")
     extra = {name: cols.pop(name) for name in order if name in cols}
     extra.update(cols)
     write(path, table.t, u, omega, phi, table.rate_hz, meta, {k: np.asarray(v) for k, v in extra.items()})
@@ -188,6 +203,27 @@ def excitation_column(rows: np.ndarray, t_first: float, table: Table) -> np.ndar
     integral = np.column_stack([np.concatenate([[0.0], area[:-1]]), area]).ravel()
     cum = np.interp(edges, knots, integral, left=0.0, right=float(area[-1]))
     return np.diff(cum) / period
+
+
+def sent_column(rows: np.ndarray, t_first: float, table: Table, law: np.ndarray) -> np.ndarray:
+    """The volts the daemon's PWM frames told the drive, averaged over each loop sample: each
+    frame's held from its sending until the next (the MCU holds a duty until the next frame),
+    the exact mean of that step function over the sample's 1 ms bin. The law's command (`law`)
+    where the bin began before the first frame recorded.
+
+    Why not the law's 1 ms mean: the drive applies the frames, sent once per batch of states
+    (2 kHz on the ATmega, each millisecond through the SIL's pty, irregularly when the daemon's
+    I/O thread runs late), not the 10 kHz ticks the bins average (README, model doctor step 8)."""
+    period = 1.0 / table.rate_hz
+    edges = t_first - period + np.arange(len(table.t) + 1) * period
+    order = np.argsort(rows["t"], kind="stable")
+    t, v = rows["t"][order].astype(float), rows["volts"][order].astype(float)
+    area = np.concatenate([[0.0], np.cumsum(v[:-1] * np.diff(t))])  # ∫ from t[0] to t[i]
+    i = np.searchsorted(t, edges, side="right") - 1
+    j = np.maximum(i, 0)
+    integral = np.where(i >= 0, area[j] + v[j] * (edges - t[j]), 0.0)
+    out = np.diff(integral) / period
+    return np.where(edges[:-1] >= t[0], out, law)
 
 
 def write_parquet(path: Path, table: Table, meta: dict[str, object]) -> None:

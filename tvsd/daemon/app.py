@@ -249,7 +249,7 @@ class Daemon(DeviceEvents):
                 await self.recording_started.wait()
             await asyncio.sleep(self.cfg.daemon.drain_period_s)
             if self.recording is not None:
-                self.recording.drain(self.runner)
+                self.recording.drain(self.runner, self.drive)
                 self._check_recording()
 
     async def _heartbeat(self) -> None:

@@ -58,6 +58,7 @@ if TYPE_CHECKING:
     from tvsd.sim.sil_devices import SilDevices
 
 SPEED_WINDOW_S = 2e-3
+MEAN_MAX_TICKS = 40  # a frame averages at most 4 ms of ticks (the longest exchange period)
 SENT_HISTORY_S = 0.8  # PWM frames kept, in s of exchanges (the point stream looks back < 0.5 s)
 SENT_SLACK = 64  # of them not read back: the I/O thread may be overwriting them meanwhile
 SIL_TARGET_RANGE_M = 2.0  # the SIL scene: a surface 2 m from the PL (tvsd/sim/scene.py)
@@ -110,6 +111,7 @@ class DriveLink:
         self._sent_host = np.zeros(self._sent_n)  # ring of the PWM frames sent: host time, volts
         self._sent_volts = np.zeros(self._sent_n)
         self._sent = 0
+        self._frame_tick = 0  # the runner's tick count when the last PWM frame was made
         self._pwm_due = False  # a state came in the batch being handled: answer it with a PWM frame
         self._answering = True  # False once closing: PWM 0 is the last duty sent
         self._pwm_lock = threading.Lock()
@@ -225,13 +227,44 @@ class DriveLink:
         if not self._pwm_due or link is None:
             return
         self._pwm_due = False
-        duty = max(-1.0, min(1.0, self.runner.command * self.duty_per_volt))
+        duty = max(-1.0, min(1.0, self._exchange_mean() * self.duty_per_volt))
         with self._pwm_lock:
             if not self._answering or not link.send_pwm(duty):
                 return
         i = self._sent % self._sent_n
         self._sent_host[i], self._sent_volts[i] = time.monotonic(), duty / self.duty_per_volt
         self._sent += 1
+
+    def _exchange_mean(self) -> float:
+        """The law's command averaged over the ticks since the last PWM frame (at most
+        MEAN_MAX_TICKS), the interval the previous frame's duty was held.
+
+        The law ticks at 10 kHz, the frames go at the exchange rate (2 kHz on the ATmega) or once
+        per batch of states (the SIL pty hands them over each millisecond): the last tick alone
+        aliased the command's tick-to-tick swing (each new speed estimate moves Gd·tanh(ε̇)) into
+        the applied voltage, which the recording's u (the 1 ms mean of the ticks) does not show.
+        On the SIL daemon's identify runs the two differed by 2.1 V rms below 20 Hz (the mean of
+        the last 5 ticks only: 0.5 V), and the doctor named a clip, a resonance, coloured noise or
+        negative damping for it; with this mean 0.10 V at a steady 2 ms lag (README, model doctor
+        step 8). A command of exactly 0 is the loop's safe state (fault, idle): sent as 0 at
+        once, not averaged with the ticks before it."""
+        end = self.runner.ticks
+        n = min(end - self._frame_tick, MEAN_MAX_TICKS)  # < 1: a new runner, or no tick since
+        self._frame_tick = end
+        if self.runner.command == 0.0:
+            return 0.0
+        if n < 1:
+            return float(self.runner.command)
+        return float(self.runner.recent_ticks(n)["u"].mean())
+
+    def sent_since(self, seq: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """The PWM frames sent from number `seq` on, oldest first: host times (time.monotonic),
+        volts, and the number to ask from next time. Frames the ring overwrote before the call
+        (more than 0.8 s of them, less the slack the I/O thread may be writing) are skipped."""
+        end = self._sent  # one read: rows below it are written
+        first = min(max(seq, end - (self._sent_n - SENT_SLACK)), end)
+        idx = np.arange(first, end) % self._sent_n
+        return self._sent_host[idx], self._sent_volts[idx], end
 
     def sent_volts(self, t_mcu: np.ndarray) -> np.ndarray:
         """The motor voltage commanded at MCU times: each PWM frame's from when it was sent (its

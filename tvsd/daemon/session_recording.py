@@ -13,6 +13,9 @@ any of them to numpy/pandas users):
 - `pulses`     every pulse event from the MCU: host time, MCU ticks, channel (0 zero, 1 optical).
 - `points`     every point published, fields of tvsd.scan.points plus t_mono.
 - `imu`        every IMU sample: sensor (0 PL, 1 SA), sample number, host time, accel, gyro.
+- `pwm`        every PWM frame the daemon sent to the MCU: t (the loop's time axis, as `loop`)
+               and the volts it carried (duty × drive.u_max_v): what the drive was told to
+               apply, which `tvsctl export` writes as `u` (the law's 1 ms mean is `u_law`).
 - `excitation` what `identify` played (tvsd/daemon/identify.py): t (the loop's time axis, as
                `loop`), d_rps added to the speed reference, d_volts added to the command.
 Marks: state changes, faults, windows, with their time.
@@ -21,7 +24,7 @@ Marks: state changes, faults, windows, with their time.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -31,6 +34,9 @@ from tvsd.recording.writer import Recorder
 from tvsd.scan.points import FIELDS as POINT_FIELDS
 from tvsd.scan.points import Point
 
+if TYPE_CHECKING:
+    from tvsd.daemon.drive_link import DriveLink
+
 RECORD_PERIOD_S = 1e-3  # 10 kHz ticks → a 1 kHz recording (docs/architecture.md: sample_rate_hz)
 REFERENCE_FIELDS = (("t", "<f8"), ("phi_ref", "<f8"), ("omega_ref", "<f8"), ("u_ff", "<f8"))
 PULSE_FIELDS = (("t_host", "<f8"), ("mcu_ticks", "<i8"), ("channel", "<i2"))
@@ -38,6 +44,7 @@ IMU_FIELDS = (
     ("sensor", "<u1"), ("k", "<i8"), ("t", "<f8"),
     ("ax", "<f4"), ("ay", "<f4"), ("az", "<f4"), ("gx", "<f4"), ("gy", "<f4"), ("gz", "<f4"),
 )  # fmt: skip
+PWM_FIELDS = (("t", "<f8"), ("volts", "<f8"))
 IMU_SENSORS = {"pl": 0, "sa": 1}
 
 
@@ -58,15 +65,20 @@ class SessionRecording:
         point_fields = [(f, "<i8" if f == "flags" else "<f8") for f in POINT_FIELDS]
         self.points = r.channel("points", [*point_fields, ("t_mono", "<f8")])
         self.imu = r.channel("imu", list(IMU_FIELDS))
+        self.pwm = r.channel("pwm", list(PWM_FIELDS))
+        self._next_frame = -1  # the number of the next PWM frame to record (-1: from the first seen)
         self._carry = np.zeros(0, dtype=TICK_DTYPE)  # ticks of the open bin
 
     @property
     def error(self) -> BaseException | None:
         return self.recorder.error
 
-    def drain(self, runner: Runner) -> None:
+    def drain(self, runner: Runner, drive: DriveLink | None = None) -> None:
         """The control ticks since the last drain, by tick number (`Runner.ticks_since`): none
-        twice, none skipped; ticks the ring overwrote first are counted and marked `ticks_lost`."""
+        twice, none skipped; ticks the ring overwrote first are counted and marked `ticks_lost`.
+        With the drive link, the PWM frames it sent since (`pwm`)."""
+        if drive is not None:
+            self.pwm_frames(*drive.sent_since(max(self._next_frame, 0)), start_ns=runner.start_ns)
         batch = runner.ticks_since(self._next_tick)
         self._next_tick = batch.next
         if batch.lost:
@@ -98,6 +110,16 @@ class SessionRecording:
         self.loop.append({"t": t, "u": mean("u"), "omega": mean("omega"), "phi": last["phi"]})
         ref = {"phi_ref": last["phi_ref"], "omega_ref": mean("omega_ref"), "u_ff": mean("u_ff")}
         self.reference.append({"t": t, **ref})
+
+    def pwm_frames(self, host: np.ndarray, volts: np.ndarray, end: int, *, start_ns: int) -> None:
+        """PWM frames sent (host times, time.monotonic; the loop's t is CLOCK_MONOTONIC since
+        the runner's start), up to frame number `end`; those sent before the recording began
+        are left out (the first drain only notes where the count stands)."""
+        first = self._next_frame
+        self._next_frame = end
+        if first < 0 or not len(host):
+            return
+        self.pwm.append({"t": host - start_ns / 1e9, "volts": volts})
 
     def window(self, rows: np.ndarray, reason: str) -> None:
         """A full-rate window of control ticks (TICK_DTYPE rows), marked with why it was taken."""

@@ -234,10 +234,15 @@ class McuPlant:
 
     def _chunk_volts(self, t0: float) -> None:
         """Each control step of the chunk gets the duty in force at its start: the host's PWM
-        frames apply from their arrival on the pacing line (a frame that came while an earlier
-        chunk was being stepped applies from this chunk's start), so a 2 kHz PWM stream is not
-        sampled once per chunk. A change the firmware made itself (its watchdog's cut) shows
-        in the duty now once no frame is pending, and applies from the chunk's start."""
+        frames apply from their arrival on the pacing line, so a 2 kHz PWM stream is not sampled
+        once per chunk. Frames that came while earlier chunks were being stepped (late: the pty
+        hands each millisecond's frames over at once, so their arrival times cannot space them)
+        share this chunk's steps in their order: the motor integrates each duty's volt-seconds,
+        and the last one alone lost the others' (on the SIL daemon every chunk found its frames
+        late, two per chunk at the ATmega's 2 kHz: the applied voltage was the second frame's,
+        0.3-0.5 V rms from the recording's u below 20 Hz). A change the firmware made itself (its
+        watchdog's cut) shows in the duty now once no frame is pending, and applies from the
+        chunk's start."""
         changes, duty_now = self.mcu.pwm_changes()
         pending = self._pwm_pending
         assert pending is not None
@@ -246,11 +251,17 @@ class McuPlant:
             pending.extend(zip(sim.tolist(), (d for _, d in changes), strict=True))
         elif not pending:
             self._duty = duty_now
-        dt = self.setup.dt
-        for k in range(self._n):
-            start = t0 + k * dt
-            while pending and pending[0][0] <= start + 0.5 * dt:
-                self._duty = pending.popleft()[1]
+        dt, n = self.setup.dt, self._n
+        late: list[float] = []
+        while pending and pending[0][0] <= t0 + 0.5 * dt:
+            late.append(pending.popleft()[1])
+        for k in range(n):
+            if k > 0 and pending and pending[0][0] <= t0 + (k + 0.5) * dt:
+                late = []  # a frame on time: the steps from here are its
+                while pending and pending[0][0] <= t0 + (k + 0.5) * dt:
+                    self._duty = pending.popleft()[1]
+            elif late:
+                self._duty = late[k * len(late) // n]
             self._u[k] = self._duty * self.mcu.drive_volts
 
     # ---- history ring ---------------------------------------------------------------------
