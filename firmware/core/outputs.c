@@ -35,6 +35,15 @@ void outputs_heartbeat(uint32_t now)
 
 bool outputs_armed(void) { return armed; }
 
+#ifdef CORE_SIL_HOOKS
+bool outputs_watchdog_window(uint32_t *last, uint32_t *ticks)
+{
+    *last = last_heartbeat;
+    *ticks = (uint32_t)core_cfg.watchdog_ms * CORE_TICKS_PER_MS; /* as outputs_tick computes it */
+    return armed;
+}
+#endif
+
 uint16_t outputs_watchdog_expiries(void) { return wd_expiries; }
 void outputs_clear_counts(void) { wd_expiries = 0; }
 int16_t outputs_pwm(void) { return pwm; }

@@ -25,4 +25,10 @@ void outputs_cut(void);
 /* Control tick: watchdog and max-on checks; sends the fault frames. */
 void outputs_tick(uint32_t now);
 
+#ifdef CORE_SIL_HOOKS
+/* The virtual MCU's wire model only (firmware/board/host, never a hardware build): the last
+ * heartbeat's tick and the watchdog in ticks; false while not armed. */
+bool outputs_watchdog_window(uint32_t *last, uint32_t *ticks);
+#endif
+
 #endif

@@ -1,0 +1,71 @@
+"""The virtual MCU's wire model: what the pty is not, and what the SIL does about it.
+
+A real UART (or USB link) from the host has the host's bytes on the wire when they are written.
+The SIL's pty hands them to the virtual MCU through the kernel's tty flip-buffer work, a
+normal-priority kworker that CPU hogs hold off for tens of ms (README, "The SIL's MCU link under
+CPU hogs: the pty's kernel worker"). A heartbeat the host sent in time can then reach a core that,
+paced at real time, has already run past last heartbeat + watchdog and cut: the pty's expiry, not
+the host's. So the virtual core does not cross that edge (the watchdog's, counted from the last
+heartbeat's own send tick) until either a heartbeat sent before it has come in, or a heartbeat
+sent after it has (the host's own gap crossed it: cut, as the chip would), or
+:data:`WIRE_ALLOWANCE_S` of wall time has passed beyond the edge with neither (a dead host: cut,
+that much late). Meanwhile the paced plant waits with it, then catches up: the core's frames go out
+with their own contiguous stamps, late, as the pty would have delivered them anyway.
+
+G, the allowance: measured (``python scripts/pty_wire_delay.py``; README, the pty's kernel worker)
+as the heartbeats' send → pump-read delay on this 2-core machine: under 2 normal-priority hogs
+(the soak's) p99.9 5.7 ms and max 39 ms, under the soak (2 hogs, 50 RPC clients) max 43 ms. The edge
+is reached only by a heartbeat read more than watchdog − period late (37.5 ms at the shipped
+50 / 12.5 ms), so G need cover only the rest of the worst delay; 50 ms covers the whole worst
+delay seen, with room, and keeps a dead host's cut within 2 × the shipped watchdog.
+"""
+
+from __future__ import annotations
+
+import bisect
+from dataclasses import dataclass, field
+from typing import Any
+
+WIRE_ALLOWANCE_S = 0.050
+# Bins of the heartbeats' send → read delay, ms (upper edges; the last bin is everything above).
+DELAY_EDGES_MS = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 30.0, 40.0, 50.0, 75.0, 100.0)
+_LABELS = (*(f"<={e:g}" for e in DELAY_EDGES_MS), f">{DELAY_EDGES_MS[-1]:g}")
+
+
+@dataclass
+class WireStats:
+    """What the wire model saw: heartbeats read and how late, holds at the watchdog's edge."""
+
+    heartbeats: int = 0
+    delay_max_ms: float = 0.0
+    delay_hist: list[int] = field(default_factory=lambda: [0] * (len(DELAY_EDGES_MS) + 1))
+    holds: int = 0  # times the core waited at the edge for the wire
+    hold_max_ms: float = 0.0  # wall time of the longest
+    released_by_heartbeat: int = 0  # a heartbeat sent before the edge came: no cut
+    cut_at_allowance: int = 0  # none came within the allowance: crossed, and the watchdog cut
+
+    def heartbeat(self, delay_s: float) -> None:
+        ms = delay_s * 1e3
+        self.heartbeats += 1
+        self.delay_max_ms = max(self.delay_max_ms, ms)
+        self.delay_hist[bisect.bisect_left(DELAY_EDGES_MS, ms)] += 1
+
+    def quantile_ms(self, q: float) -> float:
+        """Upper edge of the bin holding quantile q (inf: above the last edge)."""
+        need, seen = q * self.heartbeats, 0
+        for k, n in enumerate(self.delay_hist):
+            seen += n
+            if n and seen >= need:
+                return DELAY_EDGES_MS[k] if k < len(DELAY_EDGES_MS) else float("inf")
+        return 0.0
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "heartbeats": self.heartbeats,
+            "delay_max_ms": round(self.delay_max_ms, 3),
+            "delay_hist_ms": {label: n for label, n in zip(_LABELS, self.delay_hist, strict=True) if n},
+            "holds": self.holds,
+            "hold_max_ms": round(self.hold_max_ms, 3),
+            "released_by_heartbeat": self.released_by_heartbeat,
+            "cut_at_allowance": self.cut_at_allowance,
+        }
