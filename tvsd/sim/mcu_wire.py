@@ -23,12 +23,24 @@ delay seen, with room, and keeps a dead host's cut within 2 × the shipped watch
 from __future__ import annotations
 
 import bisect
+import contextlib
+import json
+import math
+import os
+import threading
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
-WIRE_ALLOWANCE_S = 0.050
+WIRE_ALLOWANCE_S = 0.250
+# For measuring, in the SIL devices' process (tvsd.sim.sil_process): another allowance (0: none,
+# the pty's timing decides, as before this model), and a JSON file rewritten every second with
+# the wire's WireStats (a soak's daemon and its SIL process inherit the environment).
+ENV_ALLOWANCE = "TVSD_SIL_WIRE_ALLOWANCE_S"
+ENV_STATS = "TVSD_SIL_WIRE_STATS"
 # Bins of the heartbeats' send → read delay, ms (upper edges; the last bin is everything above).
-DELAY_EDGES_MS = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 30.0, 40.0, 50.0, 75.0, 100.0)
+DELAY_EDGES_MS = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 30.0, 40.0, 50.0, 75.0, 100.0, 150.0, 200.0, 300.0, 500.0)
+_QUANTILES = (("p50", 0.5), ("p99", 0.99), ("p999", 0.999))
 _LABELS = (*(f"<={e:g}" for e in DELAY_EDGES_MS), f">{DELAY_EDGES_MS[-1]:g}")
 
 
@@ -63,9 +75,48 @@ class WireStats:
         return {
             "heartbeats": self.heartbeats,
             "delay_max_ms": round(self.delay_max_ms, 3),
+            # upper edges of the bins holding these quantiles
+            **{f"delay_{name}_ms_le": self.quantile_ms(q) for name, q in _QUANTILES},
             "delay_hist_ms": {label: n for label, n in zip(_LABELS, self.delay_hist, strict=True) if n},
             "holds": self.holds,
             "hold_max_ms": round(self.hold_max_ms, 3),
             "released_by_heartbeat": self.released_by_heartbeat,
             "cut_at_allowance": self.cut_at_allowance,
         }
+
+
+def allowance_from_env(default: float = WIRE_ALLOWANCE_S) -> float:
+    """The allowance the SIL process uses: $TVSD_SIL_WIRE_ALLOWANCE_S if set (seconds), else G."""
+    raw = os.environ.get(ENV_ALLOWANCE, "").strip()
+    if not raw:
+        return default
+    try:
+        value = float(raw)
+    except ValueError:
+        value = math.nan
+    if not 0.0 <= value < 10.0:
+        raise ValueError(f"{ENV_ALLOWANCE}={raw!r}: seconds in [0, 10) expected. Fix: unset it, or e.g. 0.05")
+    return value
+
+
+def export_stats(stats: WireStats, stop: threading.Event, period_s: float = 1.0) -> threading.Thread | None:
+    """If $TVSD_SIL_WIRE_STATS names a file, a thread rewrites it with `stats` every period_s
+    until `stop` (and once more then): the figures survive the process being killed."""
+    path = os.environ.get(ENV_STATS, "").strip()
+    if not path:
+        return None
+    target = Path(path)
+
+    def run() -> None:
+        while True:
+            done = stop.wait(period_s)
+            tmp = target.with_name(target.name + ".tmp")
+            with contextlib.suppress(OSError):
+                tmp.write_text(json.dumps(stats.as_dict()))
+                tmp.replace(target)
+            if done:
+                return
+
+    thread = threading.Thread(target=run, name="sil-wire-stats", daemon=True)
+    thread.start()
+    return thread
