@@ -39,7 +39,9 @@ WIRE_ALLOWANCE_S = 0.250
 ENV_ALLOWANCE = "TVSD_SIL_WIRE_ALLOWANCE_S"
 ENV_STATS = "TVSD_SIL_WIRE_STATS"
 # Bins of the heartbeats' send → read delay, ms (upper edges; the last bin is everything above).
-DELAY_EDGES_MS = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 30.0, 40.0, 50.0, 75.0, 100.0, 150.0, 200.0, 300.0, 500.0)
+DELAY_EDGES_MS = (
+    0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 30.0, 40.0, 50.0, 75.0, 100.0, 150.0, 200.0, 300.0, 500.0
+)
 _QUANTILES = (("p50", 0.5), ("p99", 0.99), ("p999", 0.999))
 _LABELS = (*(f"<={e:g}" for e in DELAY_EDGES_MS), f">{DELAY_EDGES_MS[-1]:g}")
 
