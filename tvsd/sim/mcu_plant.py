@@ -142,8 +142,8 @@ class McuPlant:
     record: bool = True  # keep the (t, angle) of every encoder update, for tests
     library: Path | None = None
     history_s: float = 10.0  # length of the history ring (sim seconds)
-    # paced: how long past its watchdog's edge the core waits for a heartbeat the pty hands over
-    # late (tvsd.sim.mcu_wire); the plant waits with it, then catches up
+    # paced: how long past its watchdog's edge the firmware's cut waits for a heartbeat the pty
+    # hands over late (tvsd.sim.mcu_wire)
     wire_allowance_s: float = WIRE_ALLOWANCE_S
 
     def __post_init__(self) -> None:
@@ -347,21 +347,15 @@ class McuPlant:
         try:
             while not self._stop.is_set():
                 line = p.sim0 + self.speed * (time.monotonic() - p.wall0)
-                # the core may wait at its watchdog's edge for a late heartbeat (mcu_wire)
-                limit = self.mcu.run_limit_s(line)
-                while self.t + self.chunk_s <= limit:
+                while self.t + self.chunk_s <= line:
                     self.step()
                     self.mcu.write_out()  # its state frames out now, not when the pump next runs
-                    if self.t + self.chunk_s > line:
-                        break
-                    limit = self.mcu.run_limit_s(line)
                 lag = line - self.t
                 p.lag_sum_s += lag
                 p.lag_max_s = max(p.lag_max_s, lag)
                 p.feeds += 1
-                # pacing, not synchronisation: wake for the next chunk boundary (held: a chunk on)
-                ahead = self.t + self.chunk_s - line
-                self._stop.wait((ahead if ahead > 0 else self.chunk_s) / self.speed + 0.1 * period)
+                # pacing, not synchronisation: wake for the next chunk boundary
+                self._stop.wait(max(0.0, (self.t + self.chunk_s - line) / self.speed) + 0.1 * period)
         except BaseException as exc:  # reported by stop()
             self._error = exc
 

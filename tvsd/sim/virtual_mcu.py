@@ -150,6 +150,8 @@ def _load(path: Path) -> tuple[ctypes.CDLL, Path]:
         ("vmcu_rx_bytes", None, [buf, ctypes.c_size_t]),
         ("vmcu_rx_bytes_at", None, [buf, ctypes.c_size_t, u64]),
         ("vmcu_watchdog", ctypes.c_int, [ctypes.POINTER(u64), ctypes.POINTER(u64)]),
+        ("vmcu_watchdog_defer", None, [ctypes.c_int]),
+        ("vmcu_watchdog_check", None, []),
         ("vmcu_tx_bytes", ctypes.c_size_t, [buf, ctypes.c_size_t]),
         ("vmcu_set_encoder", None, [i32]),
         ("vmcu_encoder_ramp", None, [u64, ctypes.c_double, u64, ctypes.c_double]),
@@ -179,7 +181,7 @@ class VirtualMcu:
         wire_allowance_s: float = 0.0,
     ) -> None:
         """`wire_allowance_s` > 0: the wire model (tvsd.sim.mcu_wire) on a clock that runs on wall
-        time (the wall clock, or a paced plant's timelines): the core waits at its watchdog's edge
+        time (the wall clock, or a paced plant's timelines): the watchdog's cut waits at its edge
         for a heartbeat the pty may still hand over late, at most that long. 0: none (the pty's
         timing decides, as before; a manual clock driven by hand never waits)."""
         if counts_per_rev <= 0:
@@ -226,7 +228,7 @@ class VirtualMcu:
         self._rx_queue: deque[tuple[int, float, bytes, bool]] = deque()
         self._wd_edge, self._wd_ticks = ctypes.c_uint64(), ctypes.c_uint64()
         self._released_edge = -1  # an edge the allowance ran out at: crossed
-        self._held_edge, self._held_since = -1, 0.0  # the edge the core waits at, since (monotonic)
+        self._deferring, self._held_since = False, 0.0  # the cut waits for the wire, since (monotonic)
         spec = load_spec()
         hb = spec.by_name("heartbeat")
         self._hb_head = (spec.sync, hb.size, hb.id)  # a heartbeat frame's SYNC, LEN, ID
@@ -275,6 +277,7 @@ class VirtualMcu:
             now = min(ticks, now + self._slice_ticks)
             if queue and queue[0][0] < now:
                 now = queue[0][0]  # stop where the next host bytes arrived
+            self._defer_locked(now)
             self._lib.vmcu_advance_to(now)
             while queue and queue[0][0] <= now:
                 self._rx_locked(*queue.popleft())
@@ -292,6 +295,14 @@ class VirtualMcu:
         core is past it: the watchdog counts from when it was on the wire, not from the pty's
         late hand-over (vmcu_rx_bytes_at; only a heartbeat, whose handling is a stamp)."""
         raw = (ctypes.c_uint8 * len(data)).from_buffer_copy(data)
+        if (
+            heartbeat
+            and self._deferring
+            and self._lib.vmcu_watchdog(self._wd_edge, self._wd_ticks)
+            and when >= self._wd_edge.value  # sent at or after the edge: the host's own gap
+        ):
+            self._end_deferral_locked(released=False)
+            self._lib.vmcu_watchdog_check()  # the cut, as the tick at the edge made it: before it
         if heartbeat and when >= 0:
             self._lib.vmcu_rx_bytes_at(raw, len(data), when)
         else:
@@ -427,7 +438,7 @@ class VirtualMcu:
                 # Time first: received bytes are handled at the time they arrived, so a
                 # heartbeat_ack's mcu_ticks matches the host's clock to the pump's latency.
                 if self.clock == "wall":
-                    self._advance_locked(self._hold_locked(self._ticks(self._wall_s())))
+                    self._advance_locked(self._ticks(self._wall_s()))
                 if self.cable_cut:  # a cut cable: what the host sends never arrives (nor ours:
                     data = b""  # _write_locked drops it)
                 if data and timeline is not None:
@@ -492,34 +503,27 @@ class VirtualMcu:
             return None
         return edge
 
-    def _hold_locked(self, target: int) -> int:
-        """`target`, or the tick before the watchdog's edge while the wire model holds the core
-        there (lock held); counts the holds and how long each lasted."""
+    def _defer_locked(self, upto: int) -> None:
+        """Whether the watchdog's cut waits while the core runs to `upto` (lock held): while it
+        is at or past the edge that the wire may still answer (_edge_locked). The core's time,
+        its frames and the plant run on; only the cut waits. Counts the waits."""
         edge = self._edge_locked()
-        if edge is not None and target >= edge:
-            if self._held_edge < 0:
-                self.wire.holds += 1
-                self._held_since = time.monotonic()
-            elif edge != self._held_edge:
-                self.wire.released_by_heartbeat += 1  # and held again at the next edge at once
-            self._held_edge = edge
-            return edge - 1
-        if self._held_edge >= 0:
-            if edge is not None:  # moved on by a heartbeat; else crossed (the cut)
-                self.wire.released_by_heartbeat += 1
-            held_ms = (time.monotonic() - self._held_since) * 1e3
-            self.wire.hold_max_ms = max(self.wire.hold_max_ms, held_ms)
-            self._held_edge = -1
-        return target
+        waiting = edge is not None and upto >= edge
+        if waiting == self._deferring:
+            return
+        if waiting:
+            self._lib.vmcu_watchdog_defer(1)
+            self._deferring, self._held_since = True, time.monotonic()
+            self.wire.holds += 1
+        else:  # moved on by a heartbeat sent in time; else crossed (the allowance spent: cut)
+            self._end_deferral_locked(released=edge is not None)
 
-    def run_limit_s(self, target_s: float) -> float:
-        """How far a clock's driver (a paced plant) that wants the core at target_s may run it
-        now: target_s, or the watchdog's edge while the wire model holds the core before it
-        (tvsd.sim.mcu_wire). The driver steps nothing that ends past it, and asks again."""
-        target = math.ceil(target_s * self.clock_hz)
-        with self._lock:
-            limit = self._hold_locked(target)
-        return target_s if limit == target else limit / self.clock_hz
+    def _end_deferral_locked(self, released: bool) -> None:
+        self._lib.vmcu_watchdog_defer(0)
+        self._deferring = False
+        self.wire.hold_max_ms = max(self.wire.hold_max_ms, (time.monotonic() - self._held_since) * 1e3)
+        if released:
+            self.wire.released_by_heartbeat += 1
 
     def _sent_times(self, data: bytes, arrival: float) -> list[tuple[float, bytes]]:
         """`data` cut after each heartbeat frame in it, each part with the time its last byte was

@@ -130,6 +130,14 @@ VMCU_API int vmcu_watchdog(uint64_t *edge, uint64_t *ticks)
     return 1;
 }
 
+VMCU_API void vmcu_watchdog_defer(int on) { outputs_watchdog_defer(on != 0); }
+
+VMCU_API void vmcu_watchdog_check(void)
+{
+    outputs_watchdog_check((uint32_t)vm.now);
+    core_poll();
+}
+
 VMCU_API size_t vmcu_tx_bytes(uint8_t *buf, size_t max)
 {
     size_t n = 0;
