@@ -10,9 +10,9 @@ the edge as soon as that heartbeat comes.
 
 The pty's delay is made here, not waited for: each late heartbeat is written after its edge with
 a `host_us` stamp (CLOCK_MONOTONIC µs, what the host's link writes) from before it, exactly what
-a heartbeat held in the flip buffer looks like when it is read. G is 0.3 s in these tests (not the
-shipped 50 ms) so that a loaded machine's wake-ups of this Python thread (tens of ms) do not decide
-them: each late write is asserted to have gone out well inside G.
+a heartbeat held in the flip buffer looks like when it is read. G is 0.3 s in these tests (the
+shipped 0.5 s would only make them longer), which leaves a loaded machine's wake-ups of this
+thread room: each late write is asserted to have gone out well inside G.
 
 Both clocks that run on wall time are checked: the paced plant's (the SIL daemon's: McuPlant) and
 the virtual MCU's own wall clock (its pump thread advances it).
