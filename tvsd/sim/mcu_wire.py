@@ -60,8 +60,8 @@ class WireStats:
     heartbeats: int = 0
     delay_max_ms: float = 0.0
     delay_hist: list[int] = field(default_factory=lambda: [0] * (len(DELAY_EDGES_MS) + 1))
-    holds: int = 0  # times the core waited at the edge for the wire
-    hold_max_ms: float = 0.0  # wall time of the longest
+    holds: int = 0  # times the cut waited at the watchdog's edge for the wire
+    hold_max_ms: float = 0.0  # wall time of the longest wait
     released_by_heartbeat: int = 0  # a heartbeat sent before the edge came: no cut
     cut_at_allowance: int = 0  # none came within the allowance: crossed, and the watchdog cut
 

@@ -479,11 +479,12 @@ class VirtualMcu:
         return None
 
     def _edge_locked(self) -> int | None:
-        """The tick the core must not reach yet, or None (lock held): the watchdog's edge (the
-        last heartbeat's send tick + watchdog, moved on by the heartbeats queued before it) while
-        the wire may still bring a heartbeat sent before it. None once one sent at or after it
-        is queued (the host's own gap crossed the edge: the firmware cuts), once the allowance of
-        wall time past the edge is spent (a dead host: cut, that much late), or unarmed."""
+        """The tick from which the watchdog's cut waits for the wire, or None (lock held): its
+        edge (the last heartbeat's send tick + watchdog, moved on by the heartbeats queued before
+        it) while the wire may still bring a heartbeat sent before it. None once one sent at or
+        after it is queued (the host's own gap crossed the edge: the firmware cuts), once the
+        allowance of wall time past the edge is spent (a dead host: cut, that much late), or
+        unarmed."""
         to_host = self._to_host()
         if self.wire_allowance_s <= 0 or to_host is None:
             return None
