@@ -273,11 +273,17 @@ class VirtualMcu:
         queue = self._rx_queue
         while queue and queue[0][0] <= now:
             self._rx_locked(*queue.popleft())
+        # the wire model, only where this advance reaches the watchdog's edge (one call, not one a slice)
+        wire = self.wire_allowance_s > 0 and (
+            self._deferring
+            or (self._lib.vmcu_watchdog(self._wd_edge, self._wd_ticks) and ticks >= self._wd_edge.value)
+        )
         while now < ticks:
             now = min(ticks, now + self._slice_ticks)
             if queue and queue[0][0] < now:
                 now = queue[0][0]  # stop where the next host bytes arrived
-            self._defer_locked(now)
+            if wire:
+                self._defer_locked(now)
             self._lib.vmcu_advance_to(now)
             while queue and queue[0][0] <= now:
                 self._rx_locked(*queue.popleft())
@@ -291,9 +297,10 @@ class VirtualMcu:
 
     def _rx_locked(self, when: int, arrival: float, data: bytes, heartbeat: bool = False) -> None:
         """Host bytes into the core's UART (lock held); a PWM change they made is logged with
-        their arrival time. A heartbeat frame alone is handled at `when`, its send tick, if the
-        core is past it: the watchdog counts from when it was on the wire, not from the pty's
-        late hand-over (vmcu_rx_bytes_at; only a heartbeat, whose handling is a stamp)."""
+        their arrival time. A heartbeat frame alone that comes while the watchdog's cut waits for
+        the wire is handled at `when`, its send tick: the watchdog counts from when it was on the
+        wire, not from the pty's late hand-over (vmcu_rx_bytes_at; only a heartbeat, whose
+        handling is a stamp)."""
         raw = (ctypes.c_uint8 * len(data)).from_buffer_copy(data)
         if (
             heartbeat
@@ -303,7 +310,9 @@ class VirtualMcu:
         ):
             self._end_deferral_locked(released=False)
             self._lib.vmcu_watchdog_check()  # the cut, as the tick at the edge made it: before it
-        if heartbeat and when >= 0:
+        if heartbeat and self._deferring and when >= 0:
+            # read while the cut waits for it: the next edge counts from its send tick. (Not
+            # otherwise: the ack's mcu_ticks stays the read's, as before, for the host's clock sync.)
             self._lib.vmcu_rx_bytes_at(raw, len(data), when)
         else:
             self._lib.vmcu_rx_bytes(raw, len(data))
@@ -441,7 +450,7 @@ class VirtualMcu:
                     self._advance_locked(self._ticks(self._wall_s()))
                 if self.cable_cut:  # a cut cable: what the host sends never arrives (nor ours:
                     data = b""  # _write_locked drops it)
-                if data and timeline is not None:
+                if data and timeline is not None and math.isfinite(at):  # NaN: pacing not begun
                     hb_len = FRAME_HEADER + self._hb_head[1] + FRAME_CRC
                     for sent, part in self._sent_times(data, arrival):
                         if sent < arrival:  # a part that ends with a heartbeat: that frame alone
