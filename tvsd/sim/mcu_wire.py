@@ -6,8 +6,8 @@ normal-priority kworker that CPU hogs hold off for tens to hundreds of ms (READM
 link under CPU hogs: the pty's kernel worker"). A heartbeat the host sent in time could then reach
 a core that, paced at real time, had already run past last heartbeat + watchdog and cut: the
 pty's expiry, not the host's. So the firmware's watchdog cut waits at that edge (counted from the
-last heartbeat's own send tick: a late heartbeat goes into the core at the tick it was sent,
-vmcu_rx_bytes_at) until either a heartbeat sent before the edge has come in (no cut), or one sent
+last heartbeat's own send tick: one read while the cut waits goes into the core at the tick it
+was sent, vmcu_rx_bytes_at) until either a heartbeat sent before the edge has come in (no cut), or one sent
 at or after it has (the host's own gap crossed it: cut before that heartbeat is handled), or
 :data:`WIRE_ALLOWANCE_S` of wall time has passed beyond the edge with neither (a dead host: cut,
 that much late). Only the cut waits (a SIL-only core hook, CORE_SIL_HOOKS): the core's clock,
