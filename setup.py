@@ -59,7 +59,7 @@ vmcu = Extension(
     "tvsd.sim._vmcu",
     sources=[f"firmware/core/{n}.c" for n in CORE] + ["firmware/board/host/board.c"],
     include_dirs=["firmware/core", "firmware/board/host"],
-    define_macros=[("BOARD_ID", "BOARD_ID_HOST"), ("CORE_TX_RING", "8192u")],
+    define_macros=[("BOARD_ID", "BOARD_ID_HOST"), ("CORE_TX_RING", "8192u"), ("CORE_SIL_HOOKS", None)],
     extra_compile_args=["-std=gnu11", "-fvisibility=hidden", "-Wall", "-Wextra"],
     libraries=["m"],
 )

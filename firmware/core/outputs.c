@@ -35,6 +35,30 @@ void outputs_heartbeat(uint32_t now)
 
 bool outputs_armed(void) { return armed; }
 
+#ifdef CORE_SIL_HOOKS
+static bool wd_deferred; /* the SIL's wire model: the expiry waits for a heartbeat still on the pty */
+
+bool outputs_watchdog_window(uint32_t *last, uint32_t *ticks)
+{
+    *last = last_heartbeat;
+    *ticks = (uint32_t)core_cfg.watchdog_ms * CORE_TICKS_PER_MS; /* as outputs_tick computes it */
+    return armed;
+}
+
+void outputs_watchdog_defer(bool on) { wd_deferred = on; }
+
+void outputs_watchdog_check(uint32_t now)
+{
+    uint32_t wd = (uint32_t)core_cfg.watchdog_ms * CORE_TICKS_PER_MS;
+    if (armed && (int32_t)(now - last_heartbeat) >= (int32_t)wd) {
+        armed = false;
+        wd_expiries++;
+        outputs_cut();
+        core_fault(FAULT_WATCHDOG_EXPIRED, core_cfg.watchdog_ms);
+    }
+}
+#endif
+
 uint16_t outputs_watchdog_expiries(void) { return wd_expiries; }
 void outputs_clear_counts(void) { wd_expiries = 0; }
 int16_t outputs_pwm(void) { return pwm; }
@@ -80,7 +104,11 @@ void outputs_tick(uint32_t now)
         wd_ticks = (uint32_t)limits_for_wd * CORE_TICKS_PER_MS;
         max_on_ticks = (uint32_t)limits_for_max_on * CORE_TICKS_PER_MS;
     }
+#ifdef CORE_SIL_HOOKS
+    if (armed && expired(now, last_heartbeat, wd_ticks) && !wd_deferred) {
+#else
     if (armed && expired(now, last_heartbeat, wd_ticks)) {
+#endif
         armed = false;
         wd_expiries++;
         outputs_cut();

@@ -25,4 +25,14 @@ void outputs_cut(void);
 /* Control tick: watchdog and max-on checks; sends the fault frames. */
 void outputs_tick(uint32_t now);
 
+#ifdef CORE_SIL_HOOKS
+/* The virtual MCU's wire model only (firmware/board/host, never a hardware build): the last
+ * heartbeat's tick and the watchdog in ticks; false while not armed. */
+bool outputs_watchdog_window(uint32_t *last, uint32_t *ticks);
+/* While on, the control tick does not cut on an expired watchdog (the wire may still bring a
+ * heartbeat sent in time); outputs_watchdog_check cuts now if it has expired (as the tick would). */
+void outputs_watchdog_defer(bool on);
+void outputs_watchdog_check(uint32_t now);
+#endif
+
 #endif

@@ -60,6 +60,7 @@ from tvsd.model import plant as K
 from tvsd.scan.geometry import aim, doe_b_target
 from tvsd.scan.settings import ScanSettings
 from tvsd.sim import runs
+from tvsd.sim.mcu_wire import WIRE_ALLOWANCE_S
 from tvsd.sim.record import substeps_for
 from tvsd.sim.virtual_mcu import PULSE_OPTICAL, VirtualMcu
 
@@ -141,6 +142,9 @@ class McuPlant:
     record: bool = True  # keep the (t, angle) of every encoder update, for tests
     library: Path | None = None
     history_s: float = 10.0  # length of the history ring (sim seconds)
+    # paced: how long past its watchdog's edge the firmware's cut waits for a heartbeat the pty
+    # hands over late (tvsd.sim.mcu_wire)
+    wire_allowance_s: float = WIRE_ALLOWANCE_S
 
     def __post_init__(self) -> None:
         if not self.speed > 0:
@@ -169,6 +173,7 @@ class McuPlant:
             drive_volts=self.cfg.drive.u_max_v,
             clock="manual",
             library=self.library,
+            wire_allowance_s=self.wire_allowance_s,
         )
         self.shaft_t: list[float] = []
         self.shaft_angle: list[float] = []
@@ -331,6 +336,7 @@ class McuPlant:
         self.mcu.log_pwm()
         self._pwm_pending, self._duty = deque(), self.mcu.pwm_duty
         self.mcu.rx_timeline = self._host_to_sim_s  # host bytes enter the core at their arrival
+        self.mcu.core_to_host = lambda sim_s: self.pacing.truth_host(sim_s, self.speed)
         self._thread = threading.Thread(target=self._paced, name="mcu-plant", daemon=True)
         self._thread.start()
 
@@ -340,6 +346,7 @@ class McuPlant:
             self._thread.join(timeout=5.0)
             self._thread = None
         self.mcu.rx_timeline = None  # the clock holds now: host bytes go in as they come
+        self.mcu.core_to_host = None
         self.mcu.flush_rx()
         if self._error is not None:
             raise RuntimeError("the paced plant thread failed") from self._error

@@ -81,14 +81,19 @@ class Devices:
         from tvsd.hw.imu_clock import Clock, MonotonicClock
         from tvsd.sim.imu_motion import PlantClock, SyntheticParams, plant_pair, synthetic_pair
         from tvsd.sim.mcu_plant import McuPlant
+        from tvsd.sim.mcu_wire import allowance_from_env, export_stats
         from tvsd.sim.mpu6050 import sil_pair
 
         cfg = p.cfg
         self.plant: McuPlant | None = None
         clock: Clock = MonotonicClock()
+        self._stats_stop = threading.Event()
         if p.plant:
-            plant = McuPlant(cfg, speed=1.0, record=False, history_s=p.history_s)
+            plant = McuPlant(
+                cfg, speed=1.0, record=False, history_s=p.history_s, wire_allowance_s=allowance_from_env()
+            )
             self.plant = plant
+            export_stats(plant.mcu.wire, self._stats_stop)
             plant.beta = p.beta
             for index in (0, 1):
                 plant.mcu.set_limit(index, 0)  # the home switches, at step 0
@@ -129,6 +134,7 @@ class Devices:
             raise ValueError(f"IMU fault {kind!r}: loss or restore")
 
     def close(self) -> None:
+        self._stats_stop.set()
         if self.plant is not None:
             self.plant.close()
 

@@ -53,6 +53,7 @@ from typing import Literal
 
 from tvsd.errors import DeviceError
 from tvsd.hw.mcu.spec import FRAME_CRC, FRAME_HEADER, load_spec
+from tvsd.sim.mcu_wire import WireStats
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
 LIBRARY = FIRMWARE_DIR / "build" / "libtvsmcu_host.so"  # the checkout's (make -C firmware host-lib)
@@ -147,6 +148,10 @@ def _load(path: Path) -> tuple[ctypes.CDLL, Path]:
         ("vmcu_now", u64, []),
         ("vmcu_advance_to", None, [u64]),
         ("vmcu_rx_bytes", None, [buf, ctypes.c_size_t]),
+        ("vmcu_rx_bytes_at", None, [buf, ctypes.c_size_t, u64]),
+        ("vmcu_watchdog", ctypes.c_int, [ctypes.POINTER(u64), ctypes.POINTER(u64)]),
+        ("vmcu_watchdog_defer", None, [ctypes.c_int]),
+        ("vmcu_watchdog_check", None, []),
         ("vmcu_tx_bytes", ctypes.c_size_t, [buf, ctypes.c_size_t]),
         ("vmcu_set_encoder", None, [i32]),
         ("vmcu_encoder_ramp", None, [u64, ctypes.c_double, u64, ctypes.c_double]),
@@ -173,7 +178,12 @@ class VirtualMcu:
         drive_volts: float = 12.0,
         clock: Literal["wall", "manual"] = "wall",
         library: Path | None = None,
+        wire_allowance_s: float = 0.0,
     ) -> None:
+        """`wire_allowance_s` > 0: the wire model (tvsd.sim.mcu_wire) on a clock that runs on wall
+        time (the wall clock, or a paced plant's timelines): the watchdog's cut waits at its edge
+        for a heartbeat the pty may still hand over late, at most that long. 0: none (the pty's
+        timing decides, as before; a manual clock driven by hand never waits)."""
         if counts_per_rev <= 0:
             raise VirtualMcuError(f"counts_per_rev must be positive, got {counts_per_rev}")
         if clock not in ("wall", "manual"):
@@ -181,6 +191,10 @@ class VirtualMcu:
         self.counts_per_rev = counts_per_rev
         self.drive_volts = drive_volts
         self.clock = clock
+        if not 0.0 <= wire_allowance_s < 10.0:
+            raise VirtualMcuError(f"wire_allowance_s must be in [0, 10) s, got {wire_allowance_s}")
+        self.wire_allowance_s = wire_allowance_s
+        self.wire = WireStats()
         self._lib, self._tmpdir = _load(library or default_library())
         self._lib.vmcu_init()
         self.clock_hz: int = self._lib.vmcu_clock_hz()
@@ -208,7 +222,13 @@ class VirtualMcu:
         # of getting them all at its stale time and then a gap the wire never had (the
         # firmware's watchdog expired on it). (core ticks, arrival, bytes), in arrival order.
         self.rx_timeline: Callable[[float], float] | None = None
-        self._rx_queue: deque[tuple[int, float, bytes]] = deque()
+        # Its inverse (core seconds -> host time): where the wire model's allowance is counted.
+        self.core_to_host: Callable[[float], float] | None = None
+        # (core ticks, arrival, bytes, a heartbeat frame alone), in arrival order.
+        self._rx_queue: deque[tuple[int, float, bytes, bool]] = deque()
+        self._wd_edge, self._wd_ticks = ctypes.c_uint64(), ctypes.c_uint64()
+        self._released_edge = -1  # an edge the allowance ran out at: crossed
+        self._deferring, self._held_since = False, 0.0  # the cut waits for the wire, since (monotonic)
         spec = load_spec()
         hb = spec.by_name("heartbeat")
         self._hb_head = (spec.sync, hb.size, hb.id)  # a heartbeat frame's SYNC, LEN, ID
@@ -252,27 +272,50 @@ class VirtualMcu:
         now = int(self._lib.vmcu_now())
         queue = self._rx_queue
         while queue and queue[0][0] <= now:
-            self._rx_locked(*queue.popleft()[1:])
+            self._rx_locked(*queue.popleft())
+        # the wire model, only where this advance reaches the watchdog's edge (one call, not one a slice)
+        wire = self.wire_allowance_s > 0 and (
+            self._deferring
+            or (self._lib.vmcu_watchdog(self._wd_edge, self._wd_ticks) and ticks >= self._wd_edge.value)
+        )
         while now < ticks:
             now = min(ticks, now + self._slice_ticks)
             if queue and queue[0][0] < now:
                 now = queue[0][0]  # stop where the next host bytes arrived
+            if wire:
+                self._defer_locked(now)
             self._lib.vmcu_advance_to(now)
             while queue and queue[0][0] <= now:
-                self._rx_locked(*queue.popleft()[1:])
+                self._rx_locked(*queue.popleft())
             self._drain_locked()
 
     def flush_rx(self) -> None:
         """Host bytes still queued for a later core time go in now (the plant stopped)."""
         with self._lock:
             while self._rx_queue:
-                self._rx_locked(*self._rx_queue.popleft()[1:])
+                self._rx_locked(*self._rx_queue.popleft())
 
-    def _rx_locked(self, arrival: float, data: bytes) -> None:
+    def _rx_locked(self, when: int, arrival: float, data: bytes, heartbeat: bool = False) -> None:
         """Host bytes into the core's UART (lock held); a PWM change they made is logged with
-        their arrival time."""
+        their arrival time. A heartbeat frame alone that comes while the watchdog's cut waits for
+        the wire is handled at `when`, its send tick: the watchdog counts from when it was on the
+        wire, not from the pty's late hand-over (vmcu_rx_bytes_at; only a heartbeat, whose
+        handling is a stamp)."""
         raw = (ctypes.c_uint8 * len(data)).from_buffer_copy(data)
-        self._lib.vmcu_rx_bytes(raw, len(data))
+        if (
+            heartbeat
+            and self._deferring
+            and self._lib.vmcu_watchdog(self._wd_edge, self._wd_ticks)
+            and when >= self._wd_edge.value  # sent at or after the edge: the host's own gap
+        ):
+            self._end_deferral_locked(released=False)
+            self._lib.vmcu_watchdog_check()  # the cut, as the tick at the edge made it: before it
+        if heartbeat and self._deferring and when >= 0:
+            # read while the cut waits for it: the next edge counts from its send tick. (Not
+            # otherwise: the ack's mcu_ticks stays the read's, as before, for the host's clock sync.)
+            self._lib.vmcu_rx_bytes_at(raw, len(data), when)
+        else:
+            self._lib.vmcu_rx_bytes(raw, len(data))
         if self._pwm_log is not None:
             pwm = int(self._lib.vmcu_pwm())
             if pwm != self._logged_pwm:
@@ -398,7 +441,7 @@ class VirtualMcu:
                 except OSError:  # pty gone (closing)
                     return
             arrival = time.monotonic()  # before the lock: a plant holding it does not delay it
-            timeline = self.rx_timeline
+            timeline = self._timeline()
             at = math.nan if timeline is None or not data else timeline(arrival)
             with self._lock:
                 # Time first: received bytes are handled at the time they arrived, so a
@@ -407,20 +450,90 @@ class VirtualMcu:
                     self._advance_locked(self._ticks(self._wall_s()))
                 if self.cable_cut:  # a cut cable: what the host sends never arrives (nor ours:
                     data = b""  # _write_locked drops it)
-                if data and math.isfinite(at):
+                if data and timeline is not None and math.isfinite(at):  # NaN: pacing not begun
+                    hb_len = FRAME_HEADER + self._hb_head[1] + FRAME_CRC
                     for sent, part in self._sent_times(data, arrival):
-                        when = self._ticks(timeline(sent)) if sent < arrival else self._ticks(at)  # type: ignore[misc]
-                        self._rx_in_locked(when, arrival, part)
+                        if sent < arrival:  # a part that ends with a heartbeat: that frame alone
+                            when, n = self._ticks(timeline(sent)), min(hb_len, len(part))
+                            if len(part) > n:
+                                self._rx_in_locked(when, arrival, part[:-n])
+                            self._rx_in_locked(when, arrival, part[-n:], heartbeat=True)
+                        else:
+                            self._rx_in_locked(self._ticks(at), arrival, part)
                 elif data:
                     self._rx_in_locked(-1, arrival, data)
                 if not self._write_locked():
                     return
 
-    def _rx_in_locked(self, when: int, arrival: float, data: bytes) -> None:
+    def _rx_in_locked(self, when: int, arrival: float, data: bytes, heartbeat: bool = False) -> None:
         if self._rx_queue or when > int(self._lib.vmcu_now()):
-            self._rx_queue.append((when, arrival, data))  # ahead of the core: later
+            self._rx_queue.append((when, arrival, data, heartbeat))  # ahead of the core: later
         else:
-            self._rx_locked(arrival, data)
+            self._rx_locked(when, arrival, data, heartbeat)
+
+    # ---- the wire model (tvsd.sim.mcu_wire) ---------------------------------------------------
+    def _timeline(self) -> Callable[[float], float] | None:
+        """Host time -> core seconds: a paced plant's line, or the wall clock's own."""
+        if self.rx_timeline is not None:
+            return self.rx_timeline
+        if self.clock == "wall" and self.wire_allowance_s > 0:
+            return lambda t: t - self._t0
+        return None
+
+    def _to_host(self) -> Callable[[float], float] | None:
+        if self.core_to_host is not None:
+            return self.core_to_host
+        if self.clock == "wall" and self.wire_allowance_s > 0:
+            return lambda t_s: self._t0 + t_s
+        return None
+
+    def _edge_locked(self) -> int | None:
+        """The tick from which the watchdog's cut waits for the wire, or None (lock held): its
+        edge (the last heartbeat's send tick + watchdog, moved on by the heartbeats queued before
+        it) while the wire may still bring a heartbeat sent before it. None once one sent at or
+        after it is queued (the host's own gap crossed the edge: the firmware cuts), once the
+        allowance of wall time past the edge is spent (a dead host: cut, that much late), or
+        unarmed."""
+        to_host = self._to_host()
+        if self.wire_allowance_s <= 0 or to_host is None:
+            return None
+        if not self._lib.vmcu_watchdog(ctypes.byref(self._wd_edge), ctypes.byref(self._wd_ticks)):
+            return None
+        edge, wd = int(self._wd_edge.value), int(self._wd_ticks.value)
+        for when, _, _, heartbeat in self._rx_queue:
+            if heartbeat:
+                if when >= edge:
+                    return None
+                edge = when + wd
+        if edge == self._released_edge:
+            return None
+        if time.monotonic() >= to_host(edge / self.clock_hz) + self.wire_allowance_s:
+            self._released_edge = edge
+            self.wire.cut_at_allowance += 1
+            return None
+        return edge
+
+    def _defer_locked(self, upto: int) -> None:
+        """Whether the watchdog's cut waits while the core runs to `upto` (lock held): while it
+        is at or past the edge that the wire may still answer (_edge_locked). The core's time,
+        its frames and the plant run on; only the cut waits. Counts the waits."""
+        edge = self._edge_locked()
+        waiting = edge is not None and upto >= edge
+        if waiting == self._deferring:
+            return
+        if waiting:
+            self._lib.vmcu_watchdog_defer(1)
+            self._deferring, self._held_since = True, time.monotonic()
+            self.wire.holds += 1
+        else:  # moved on by a heartbeat sent in time; else crossed (the allowance spent: cut)
+            self._end_deferral_locked(released=edge is not None)
+
+    def _end_deferral_locked(self, released: bool) -> None:
+        self._lib.vmcu_watchdog_defer(0)
+        self._deferring = False
+        self.wire.hold_max_ms = max(self.wire.hold_max_ms, (time.monotonic() - self._held_since) * 1e3)
+        if released:
+            self.wire.released_by_heartbeat += 1
 
     def _sent_times(self, data: bytes, arrival: float) -> list[tuple[float, bytes]]:
         """`data` cut after each heartbeat frame in it, each part with the time its last byte was
@@ -447,7 +560,8 @@ class VirtualMcu:
                 if zlib.crc32(body) == int.from_bytes(buf[i + FRAME_HEADER + size : end], "little"):
                     host_us = int.from_bytes(buf[i + FRAME_HEADER : i + FRAME_HEADER + size], "little")
                     age_us = (arrival_us - host_us) % 2**32
-                    if age_us <= _HB_MAX_AGE_US:  # else not a time we can trust: the read's
+                    if age_us <= _HB_MAX_AGE_US:
+                        self.wire.heartbeat(age_us * 1e-6)  # else not a time we can trust: the read's
                         sent = max(last, arrival - age_us * 1e-6)
                         parts.append((sent, data[start : end - skip]))
                         start, last = end - skip, sent

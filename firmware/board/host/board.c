@@ -5,6 +5,7 @@
 
 #include "board.h"
 #include "core.h"
+#include "outputs.h"
 #include "stepper.h"
 #include "vmcu.h"
 
@@ -103,6 +104,37 @@ VMCU_API void vmcu_rx_bytes(const uint8_t *buf, size_t n)
 {
     for (size_t i = 0; i < n; i++)
         core_rx_byte(buf[i]);
+    core_poll();
+}
+
+VMCU_API void vmcu_rx_bytes_at(const uint8_t *buf, size_t n, uint64_t t)
+{
+    core_poll(); /* what is pending goes out at the present time */
+    uint64_t now = vm.now;
+    if (t < now)
+        vm.now = t; /* board_ticks() reads the time the bytes were on the wire */
+    for (size_t i = 0; i < n; i++)
+        core_rx_byte(buf[i]);
+    core_poll();
+    vm.now = now;
+}
+
+VMCU_API int vmcu_watchdog(uint64_t *edge, uint64_t *ticks)
+{
+    uint32_t last, wd;
+    if (!outputs_watchdog_window(&last, &wd))
+        return 0;
+    int32_t age = (int32_t)((uint32_t)vm.now - last); /* the 32-bit stamp placed near now */
+    *edge = (uint64_t)((int64_t)vm.now - age) + wd;
+    *ticks = wd;
+    return 1;
+}
+
+VMCU_API void vmcu_watchdog_defer(int on) { outputs_watchdog_defer(on != 0); }
+
+VMCU_API void vmcu_watchdog_check(void)
+{
+    outputs_watchdog_check((uint32_t)vm.now);
     core_poll();
 }
 

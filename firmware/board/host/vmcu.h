@@ -17,6 +17,17 @@ VMCU_API uint64_t vmcu_now(void);                   /* ticks since vmcu_init */
 VMCU_API void vmcu_advance_to(uint64_t t);
 /* Host -> MCU bytes (the UART receive side), handled at the current time. */
 VMCU_API void vmcu_rx_bytes(const uint8_t *buf, size_t n);
+/* Host -> MCU bytes that were on the wire at tick t <= now (a heartbeat the host's pty handed
+ * over late): handled with board_ticks() reading t. Only for frames whose handling is a stamp
+ * (the heartbeat: the watchdog's start and the ack's mcu_ticks); t > now: as vmcu_rx_bytes. */
+VMCU_API void vmcu_rx_bytes_at(const uint8_t *buf, size_t n, uint64_t t);
+/* The watchdog's edge: 1 and the tick at which it cuts (last heartbeat + watchdog) and the
+ * watchdog in ticks while armed, else 0. For the wire model's hold (tvsd/sim/virtual_mcu.py). */
+VMCU_API int vmcu_watchdog(uint64_t *edge, uint64_t *ticks);
+/* The wire model's deferral: while on, an expired watchdog does not cut at the control tick;
+ * vmcu_watchdog_check cuts now if it has expired (a heartbeat sent after the edge came). */
+VMCU_API void vmcu_watchdog_defer(int on);
+VMCU_API void vmcu_watchdog_check(void);
 /* MCU -> host bytes: copies up to max pending bytes, returns how many. */
 VMCU_API size_t vmcu_tx_bytes(uint8_t *buf, size_t max);
 /* Plant inputs. */
