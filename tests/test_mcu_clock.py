@@ -178,3 +178,30 @@ def test_a_loaded_host_still_syncs_on_its_fastest_round_trips() -> None:
     err = max(abs(sync.to_host(int(k)) - t) for k, t in zip(ticks, t_event, strict=True))
     bound = 5 / 3 * kth / 2
     assert err <= bound, f"{err * 1e6:.0f} µs > {bound * 1e6:.0f} µs ({cfg.min_samples}th fastest RTT)"
+
+
+def test_error_bound_holds_wherever_the_mcu_answered_inside_its_round_trips() -> None:
+    """`error_bound_s` is a worst case, not a statistic: round trips of 1-30 ms (a loaded host),
+    each MCU event anywhere inside its round trip, the extreme placements included (every event
+    at the end of its trip, or alternating ends), a 150 ppm crystal. At the samples' middle, their
+    last one and one heartbeat past it, the mapping's error must never exceed the bound, and in
+    the middle the bound is at most the slowest kept round trip's half (Σ|wᵢ| = 1 there)."""
+    rng = np.random.default_rng(5)
+    hz, ppm = 16e6, 150e-6
+    for trial in range(60):
+        sync = ClockSync(hz, ClockSettings(window=64, min_samples=8))
+        send = 100.0 + np.arange(40) * 0.0125
+        rtt = rng.uniform(1e-3, 30e-3, send.size)
+        kind = trial % 3
+        ends = np.ones(send.size) if kind == 1 else (np.arange(send.size) % 2).astype(float)
+        frac = rng.uniform(0, 1, send.size) if kind == 0 else ends
+        event = send + frac * rtt
+        ticks = np.round((event - 100.0) * hz * (1 + ppm)).astype(np.int64)
+        for s, r, k in zip(send, rtt, ticks):
+            sync.add(float(s), float(s + r), int(k))
+        for host in (float(send.mean()), float(send[-1]), float(send[-1] + 0.0125)):
+            k = round((host - 100.0) * hz * (1 + ppm))
+            err = abs(sync.to_host(k) - host)
+            assert err <= sync.error_bound_s(k) + 1e-9, (trial, host, err, sync.error_bound_s(k))
+        mid = round((float(send.mean()) - 100.0) * hz * (1 + ppm))
+        assert sync.error_bound_s(mid) <= 15e-3 + 1e-9

@@ -78,6 +78,9 @@ class ClockSync:
         # b) replaced whole, so a reader on another thread (the link's I/O thread refits) never
         # mixes two fits
         self._coef: tuple[int, float, float] = (0, 0.0, 1.0 / self.clock_hz)
+        # what error_bound_s needs of the last fit: the kept samples' ticks (centred on x_ref),
+        # whether the slope was fitted, and half the slowest kept round trip
+        self._kept: tuple[np.ndarray, bool, float] = (np.zeros(0), False, 0.0)
 
     @property
     def ready(self) -> bool:
@@ -122,6 +125,8 @@ class ClockSync:
         res = y[keep] - (a + b * x[keep])
         y0, b = y_ref + float(a), float(b)
         self._coef = (x_ref, y0, b)
+        fitted = bool(keep.sum() >= 2 and np.ptp(x[keep]) > 0)
+        self._kept = (x[keep].copy(), fitted, float(rtt[keep].max()) / 2)
         self.fit_ = ClockFit(
             offset_s=y0 - b * x_ref,
             seconds_per_tick=b,
@@ -137,6 +142,24 @@ class ClockSync:
             raise ValueError("no clock fit yet: no heartbeat round trip")
         x_ref, y_ref, b = self._coef
         return x_ref + round((host_s - y_ref) / b)
+
+    def error_bound_s(self, mcu_ticks: int) -> float:
+        """The worst error of to_host(mcu_ticks), given that each kept sample's midpoint is within
+        half its round trip of the MCU's event (the event lies inside the round trip): the fit is
+        linear in the samples, ŷ(x) = Σ wᵢ(x)·yᵢ with wᵢ = 1/n + (x − x̄)(xᵢ − x̄)/Sxx for a fitted
+        line, so its error is at most Σ|wᵢ(x)| times the largest sample error — 1 in the middle of
+        the kept samples, up to ~4 at their ends and growing outside them. With the nominal
+        slope (one sample, or all at one tick) the crystal's tolerance is added: 200 ppm of the
+        distance to them. NaN before any fit."""
+        if self.fit_ is None:
+            return float("nan")
+        xs, fitted, half_rtt = self._kept
+        x = float(mcu_ticks - self._coef[0])
+        if not fitted:
+            return half_rtt + 200e-6 * float(np.abs(x - xs).min()) / self.clock_hz
+        dx = xs - xs.mean()
+        w = 1.0 / len(xs) + (x - xs.mean()) * dx / float(np.dot(dx, dx))
+        return half_rtt * float(np.abs(w).sum())
 
     def to_host(self, mcu_ticks: int) -> float:
         """Host time (s) of an MCU tick count (unwrapped). Before any sample: NaN."""
