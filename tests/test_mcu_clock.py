@@ -197,7 +197,7 @@ def test_error_bound_holds_wherever_the_mcu_answered_inside_its_round_trips() ->
         frac = rng.uniform(0, 1, send.size) if kind == 0 else ends
         event = send + frac * rtt
         ticks = np.round((event - 100.0) * hz * (1 + ppm)).astype(np.int64)
-        for s, r, k in zip(send, rtt, ticks):
+        for s, r, k in zip(send, rtt, ticks, strict=True):
             sync.add(float(s), float(s + r), int(k))
         for host in (float(send.mean()), float(send[-1]), float(send[-1] + 0.0125)):
             k = round((host - 100.0) * hz * (1 + ppm))
