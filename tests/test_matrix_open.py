@@ -1,0 +1,75 @@
+"""The open-loop matrix's plan and its per-cause limits (tvsd.analysis.matrix_open; issue 12, item 5).
+
+Fast: the plan is drawn (no recording), the limits are read from rows made here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+
+import numpy as np
+
+from tvsd.analysis import matrix as M
+from tvsd.analysis.matrix_open import causes, limits, nulls, plan
+
+
+def test_plan_covers_every_cause_size_and_excitation():
+    p = plan(6, (1.0, 3.0, 10.0), seed=31)
+    assert len({c.seed for c in p}) == len(p)
+    n = Counter((c.cause, c.size) for c in p)
+    for cause in causes():
+        assert n[(cause, 3.0)] == n[(cause, 10.0)] == 6
+        assert n[(cause, 1.0)] == 3  # thinned: every other round
+        for m in (3.0, 10.0):
+            pairs = {(c.profile, c.sigma_v) for c in p if c.cause == cause and c.size == m}
+            if cause != "colored_noise":  # its σv is rescaled to its colour (matrix.coloured_sigma)
+                assert pairs == {(pr, s) for pr in M.OPEN_PROFILES for s in M.SIGMAS}, (cause, m)
+    assert n[("none", 0.0)] == 6
+    # each plant within ÷√10…×√10 of the config's
+    j = np.array([c.plant["J"] for c in p])
+    assert j.max() / j.min() > 5 and j.max() / j.min() <= 10 + 1e-9
+
+
+def test_saturation_is_sized_on_the_cases_own_command():
+    """The clip lies m × 1 % below the 99 % quantile of the command `sim record` will play."""
+    from tvsd.config import load_config
+
+    cfg = load_config()
+    for c in [c for c in plan(1, (3.0, 30.0), seed=31, thin=()) if c.cause == "saturation"]:
+        u = M.open_loop_command(cfg, c.profile, 30.0, c.seed)
+        u_max = float(c.effect.split("=")[1])
+        q = float(np.quantile(np.abs(u), M.SAT_TOP_Q))
+        assert math.isclose(u_max, q * (1 - 0.01 * c.size), rel_tol=1e-5)
+
+
+def _rows(cause: str, size: float, named: int, n: int) -> list[dict]:
+    return [
+        {"cause": cause, "size": size, "noise_units": float(size), "seen": {}, "profile": "steps",
+         "sigma_v": 0.08, "ls": cause if k < named else "none", "ls_why": {}}
+        for k in range(n)
+    ]  # fmt: skip
+
+
+def test_the_stated_limit_needs_95_percent_at_every_larger_size():
+    rows = _rows("delay", 3.0, 10, 10) + _rows("delay", 10.0, 9, 10) + _rows("delay", 30.0, 10, 10)
+    rows += _rows("drift", 10.0, 5, 10) + _rows("drift", 30.0, 8, 10) + _rows("none", 0.0, 0, 4)
+    rows[-1]["ls"] = "cogging"
+    lim95, lim90 = limits(rows), limits(rows, 0.9)
+    assert lim95["delay"]["limit_size"] == 30.0 and lim95["delay"]["above"] == "10/10"
+    assert lim90["delay"]["limit_size"] == 3.0 and lim90["delay"]["above"] == "29/30"
+    assert lim95["delay"]["limit_units"] == 30.0
+    assert math.isnan(lim95["drift"]["limit_size"]) and lim95["drift"]["named_instead"] == {"none": 7}
+    assert nulls(rows)["false_alarms"] == 1 and nulls(rows)["named"] == {"cogging": 1}
+
+
+def test_matrix_summarise_states_the_95_percent_limit():
+    res = [
+        {"case": M.Case(k, "delay", m, 2.0 * m, "delay:delay_s=0.001", "steps", 0.08, {}), "seconds": 1.0,
+         "found": "delay" if (m == 30.0 or k % 10) else "none"}
+        for m in (3.0, 30.0) for k in range(10)
+    ]  # fmt: skip
+    f = M.summarise(res, "doctor_open", 1.0)
+    assert f["doctor_open_delay_90pct_at_size"] == 3.0 and f["doctor_open_delay_95pct_at_size"] == 30.0
+    assert f["doctor_open_delay_95pct_noise_units"] == 60.0
+
