@@ -174,6 +174,8 @@ def nulls(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def table(rows: list[dict[str, Any]]) -> str:
+    from tvsd.analysis.confusion import limit
+
     lim95, lim90 = limits(rows, 0.95), limits(rows, 0.90)
     sizes = sorted({r["size"] for r in rows if r["cause"] != "none"})
     head = f"{'cause':19s}" + "".join(f"{f'{m:g}x':>14s}" for m in sizes)
@@ -192,6 +194,8 @@ def table(rows: list[dict[str, Any]]) -> str:
         s90 = f"{l90:g}x" if math.isfinite(l90) else "never"
         inst = ", ".join(f"{k} {v}" for k, v in e["named_instead"].items())
         out.append(f"{cause:19s}{cells}  {s95:37s} {s90:10s} {inst}")
+        by_units = limit([r for r in rows if r["cause"] == cause], cause, "ls", 0.95)
+        out.append(f"{'':19s}by noise units (bins 0-1-2-4-…-64, measured on the recording), 95 %: {by_units}")
     n = nulls(rows)
     out.append(
         f"nulls: {n['false_alarms']}/{n['nulls']} false alarms (CI {n['ci95_pct'][0]}-{n['ci95_pct'][1]} %)"
