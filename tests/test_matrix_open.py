@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from tvsd.analysis import matrix as M
-from tvsd.analysis.matrix_open import causes, limits, nulls, plan
+from tvsd.analysis.matrix_open import causes, limits, nulls, plan, pooled
 
 
 def test_plan_covers_every_cause_size_and_excitation():
@@ -62,6 +62,9 @@ def test_the_stated_limit_needs_95_percent_at_every_larger_size():
     assert lim95["delay"]["limit_units"] == 30.0
     assert math.isnan(lim95["drift"]["limit_size"]) and lim95["drift"]["named_instead"] == {"none": 7}
     assert nulls(rows)["false_alarms"] == 1 and nulls(rows)["named"] == {"cogging": 1}
+    # pooled by noise units (here units = size): every delay case is ≥ 3 u, 29/30 named
+    assert pooled([r for r in rows if r["cause"] == "delay"], "delay") == "from 1u: 29/30 (CI 83-100 %)"
+    assert pooled([r for r in rows if r["cause"] == "drift"], "drift") == "not reached"
 
 
 def test_matrix_summarise_states_the_95_percent_limit():

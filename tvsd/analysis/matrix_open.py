@@ -173,6 +173,23 @@ def nulls(rows: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+POOLED_UNITS = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
+
+
+def pooled(rs: list[dict[str, Any]], cause: str, rate: float = 0.95) -> str:
+    """The lowest X (of POOLED_UNITS) for which the cases whose effect measures ≥ X noise units
+    are named at ≥ `rate`, all sizes pooled, with the count and its 95 % interval."""
+    from tvsd.analysis.confusion import units
+
+    for x in POOLED_UNITS:
+        above = [r for r in rs if units(r) >= x]
+        hits = sum(r["ls"] == cause for r in above)
+        if above and hits >= rate * len(above):
+            lo, hi = M.clopper_pearson(hits, len(above))
+            return f"from {x:g}u: {hits}/{len(above)} (CI {100 * lo:.0f}-{100 * hi:.0f} %)"
+    return "not reached"
+
+
 def table(rows: list[dict[str, Any]]) -> str:
     from tvsd.analysis.confusion import limit
 
@@ -194,8 +211,10 @@ def table(rows: list[dict[str, Any]]) -> str:
         s90 = f"{l90:g}x" if math.isfinite(l90) else "never"
         inst = ", ".join(f"{k} {v}" for k, v in e["named_instead"].items())
         out.append(f"{cause:19s}{cells}  {s95:37s} {s90:10s} {inst}")
-        by_units = limit([r for r in rows if r["cause"] == cause], cause, "ls", 0.95)
-        out.append(f"{'':19s}by noise units (bins 0-1-2-4-…-64, measured on the recording), 95 %: {by_units}")
+        rs = [r for r in rows if r["cause"] == cause]
+        by_bin = limit(rs, cause, "ls", 0.95)
+        out.append(f"{'':19s}noise units measured on the recording, 95 %: every bin {by_bin}")
+        out.append(f"{'':19s}{'':44s}pooled, cases at ≥ X u: {pooled(rs, cause)}")
     n = nulls(rows)
     out.append(
         f"nulls: {n['false_alarms']}/{n['nulls']} false alarms (CI {n['ci95_pct'][0]}-{n['ci95_pct'][1]} %)"
