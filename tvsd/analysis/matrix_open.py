@@ -1,0 +1,269 @@
+"""The open-loop family of the matrix (tvsd.analysis.matrix) per cause and size, resumably, into
+JSON lines, and the per-cause limits read from it (issue 12, item 5).
+
+Each case draws its plant as matrix.cases does (J, kv, τc, R, kM log-uniform over ÷√10…×√10 of
+the config's), its excitation (staircase or PRBS/multisine) and σv stratified: the i-th case of a cause
+and size (offset by its place in the round) has σv = SIGMAS[i % 3] and profile i % 2, so any six
+consecutive ones hold every pair, and its effect at m × the
+matrix's base (saturation and delay sized on the case's own command). Rounds: every cause at
+every size once, then the next; a size in `--thin` (1× by default) only every other round; one
+null per round. Each case's row is appended as it comes (a batch cut short keeps what it did, a
+restart skips it) with its effect measured on its recording (tvsd.analysis.exposure: `seen`) and
+why the doctor answered (each cause's z, the threshold: tvsd.analysis.confusion's raw material).
+
+    nice -n 5 python -m tvsd.analysis.matrix_open OUT.w0.jsonl --reps 8 --seed 31 --worker 0 --workers 2
+    python -m tvsd.analysis.matrix_open 'OUT.w*.jsonl' --summary [--json]   # the per-cause limits
+    python -m tvsd.analysis.matrix_open 'OUT.w*.jsonl' --confusion          # what was named instead
+
+The stated limit of a cause is the lowest size from which naming is ≥ 95 % at that size and at
+every larger one (and the 90 % one likewise), with the rate over all cases from there up and its
+95 % Clopper–Pearson interval.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import glob
+import json
+import math
+import tempfile
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tvsd.analysis import matrix as M
+from tvsd.causes import Effect, parse_effect
+from tvsd.config import load_config
+
+
+def causes() -> tuple[str, ...]:
+    cfg = load_config()
+    return tuple(M._effects(cfg.plant, cfg.drive.u_max_v, np.random.default_rng(0)))
+
+
+def plan(
+    reps: int, sizes: tuple[float, ...], seed: int, thin: tuple[float, ...] = (1.0,), nulls: int = 1
+) -> list[M.Case]:
+    """`reps` rounds; sizes in `thin` only in even rounds; `nulls` nulls per round."""
+    cfg = load_config()
+    order: list[tuple[str, float, int]] = []
+    count: Counter[tuple[str, float]] = Counter()
+    for r in range(reps):
+        for j, key in enumerate([(c, m) for c in causes() for m in sizes] + [("none", 0.0)] * nulls):
+            if key[1] in thin and r % 2:
+                continue
+            order.append((*key, count[key] + j))  # j: a round's cases do not share σv and profile
+            count[key] += 1
+    dt = 1.0 / cfg.control.rate_hz
+    out = []
+    for k, (cause, m, i) in enumerate(order):
+        g = np.random.default_rng([seed, 11, k])
+        plant = M._plant(cfg, g)
+        sigma = M.SIGMAS[i % 3]
+        profile = M.OPEN_PROFILES[i % 2]
+        case_seed = 10_000 * seed + k
+        text, torque = None, math.nan
+        if cause != "none":
+            command = None
+            if cause in ("saturation", "delay"):
+                command = M.open_loop_command(cfg, profile, 30.0, case_seed)
+            text, torque = M._effects(plant, cfg.drive.u_max_v, g, command, dt)[cause](m)
+        units = torque / (plant.J * sigma) if math.isfinite(torque) else math.nan
+        if cause == "colored_noise":  # the null's spectrum below the corner (matrix.coloured_sigma)
+            sigma = M.coloured_sigma(sigma, m * M.COLOUR_TAU_S)
+        p = {k2: getattr(plant, k2) for k2 in ("J", "kv", "R", "kM", "tau_c")}
+        out.append(M.Case(case_seed, cause, m, units, text, profile, sigma, p, 0.0))
+    return out
+
+
+def _no_gain() -> None:
+    """Skip the held-out speed simulation: it runs after the cause is decided (doctor.py) and
+    changes no answer; it is a third of an analysis's CPU (scripts/doctor_nulls.py --no-gain)."""
+    from tvsd.analysis import verdict
+
+    verdict.heldout_speed = lambda *_a, **_k: (math.nan, math.nan, {}, {})
+
+
+def run(out: Path, cases: list[M.Case], cache: Path | None = None, seconds: float = 30.0) -> None:
+    from tvsd.analysis.matrix_closed import analyse, seen
+    from tvsd.sim.record import record
+
+    _no_gain()
+    done = (
+        {json.loads(x)["seed"] for x in out.read_text().splitlines() if x.strip()} if out.exists() else set()
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = cache or Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        for case in cases:
+            if case.seed in done:
+                continue
+            cfg = M.case_config(load_config(), case)
+            path = folder / f"{case.profile}-{case.seed}.csv"
+            t0 = time.perf_counter()
+            if not path.exists():
+                effects: tuple[Effect, ...] = (parse_effect(case.effect),) if case.effect else ()
+                part = path.with_suffix(".part")
+                record(cfg, part, case.profile, seconds, effects, case.seed)
+                part.rename(path)
+            row: dict[str, Any] = {**dataclasses.asdict(case), "record_s": time.perf_counter() - t0}
+            row["seen"] = seen(path, case, cfg)
+            row["ls"], row["ls_s"], row["ls_why"] = analyse(path, cfg, "ls")
+            with out.open("a") as f:
+                f.write(json.dumps(row) + "\n")
+            if cache is None:
+                path.unlink()
+
+
+def _units(rs: list[dict[str, Any]]) -> float:
+    from tvsd.analysis.confusion import units
+
+    u = [units(r) for r in rs]
+    return float(np.median(u)) if u and all(math.isfinite(x) for x in u) else math.nan
+
+
+def limits(rows: list[dict[str, Any]], rate: float = 0.95) -> dict[str, dict[str, Any]]:
+    """Per cause: named k/n and median noise units per size; the lowest size from which every
+    size is named at ≥ `rate`, the cases from there up and their 95 % interval; what was named
+    instead, and on the misses the true cause's z against the gate."""
+    out: dict[str, dict[str, Any]] = {}
+    for cause in sorted({r["cause"] for r in rows} - {"none"}):
+        rs = [r for r in rows if r["cause"] == cause]
+        by = {m: [r for r in rs if r["size"] == m] for m in sorted({r["size"] for r in rs})}
+        ok = {m: sum(r["ls"] == cause for r in g) for m, g in by.items()}
+        lim = M.lowest_size_from({m: ok[m] / len(g) for m, g in by.items()}, rate)
+        entry: dict[str, Any] = {
+            "named_by_size": {f"{m:g}x": f"{ok[m]}/{len(g)}" for m, g in by.items()},
+            "units_by_size": {f"{m:g}x": round(_units(g), 3) for m, g in by.items()},
+            "limit_size": lim,
+        }
+        if math.isfinite(lim):
+            above = [r for r in rs if r["size"] >= lim]
+            hits = sum(r["ls"] == cause for r in above)
+            lo, hi = M.clopper_pearson(hits, len(above))
+            entry.update(
+                limit_units=round(_units(by[lim]), 3),
+                above=f"{hits}/{len(above)}",
+                above_ci95_pct=[round(100 * lo), round(100 * hi)],
+            )
+        misses = [r for r in rs if r["ls"] != cause]
+        entry["named_instead"] = dict(Counter(str(r["ls"])[:40] for r in misses).most_common())
+        entry["misses"] = [
+            [f"{r['size']:g}x", r["profile"], round(r["sigma_v"], 3), str(r["ls"])[:30],
+             r.get("ls_why", {}).get("z", {}).get(cause), r.get("ls_why", {}).get("threshold")]
+            for r in misses
+        ]  # fmt: skip
+        out[cause] = entry
+    return out
+
+
+def nulls(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    ns = [r for r in rows if r["cause"] == "none"]
+    fa = [r for r in ns if r["ls"] != "none"]
+    lo, hi = M.clopper_pearson(len(fa), len(ns)) if ns else (math.nan, math.nan)
+    return {
+        "nulls": len(ns),
+        "false_alarms": len(fa),
+        "ci95_pct": [round(100 * lo, 1), round(100 * hi, 1)],
+        "named": dict(Counter(str(r["ls"])[:40] for r in fa)),
+    }
+
+
+POOLED_UNITS = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
+
+
+def pooled(rs: list[dict[str, Any]], cause: str, rate: float = 0.95) -> str:
+    """The lowest X (of POOLED_UNITS) for which the cases whose effect measures ≥ X noise units
+    are named at ≥ `rate`, all sizes pooled, with the count and its 95 % interval."""
+    from tvsd.analysis.confusion import units
+
+    for x in POOLED_UNITS:
+        above = [r for r in rs if units(r) >= x]
+        hits = sum(r["ls"] == cause for r in above)
+        if above and hits >= rate * len(above):
+            lo, hi = M.clopper_pearson(hits, len(above))
+            return f"from {x:g}u: {hits}/{len(above)} (CI {100 * lo:.0f}-{100 * hi:.0f} %)"
+    return "not reached"
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    from tvsd.analysis.confusion import limit
+
+    lim95, lim90 = limits(rows, 0.95), limits(rows, 0.90)
+    sizes = sorted({r["size"] for r in rows if r["cause"] != "none"})
+    head = f"{'cause':19s}" + "".join(f"{f'{m:g}x':>14s}" for m in sizes)
+    out = [head + "  95 % from (units; cases above, CI)   90 % from   named instead"]
+    for cause, e in lim95.items():
+        cells = "".join(
+            f"{e['named_by_size'].get(f'{m:g}x', '-'):>7s}{_u(e['units_by_size'].get(f'{m:g}x')):>7s}"
+            for m in sizes
+        )
+        if math.isfinite(e["limit_size"]):
+            ci = e["above_ci95_pct"]
+            s95 = f"{e['limit_size']:g}x ({_u(e['limit_units']).strip()}u; {e['above']}, {ci[0]}-{ci[1]} %)"
+        else:
+            s95 = "never"
+        l90 = lim90[cause]["limit_size"]
+        s90 = f"{l90:g}x" if math.isfinite(l90) else "never"
+        inst = ", ".join(f"{k} {v}" for k, v in e["named_instead"].items())
+        out.append(f"{cause:19s}{cells}  {s95:37s} {s90:10s} {inst}")
+        rs = [r for r in rows if r["cause"] == cause]
+        by_bin = limit(rs, cause, "ls", 0.95)
+        out.append(f"{'':19s}noise units measured on the recording, 95 %: every bin {by_bin}")
+        out.append(f"{'':19s}{'':44s}pooled, cases at ≥ X u: {pooled(rs, cause)}")
+    n = nulls(rows)
+    out.append(
+        f"nulls: {n['false_alarms']}/{n['nulls']} false alarms (CI {n['ci95_pct'][0]}-{n['ci95_pct'][1]} %)"
+        + (f": {n['named']}" if n["named"] else "")
+    )
+    out.append("cells: named/cases and the median noise units (torque over J·σv; n/a: not a torque)")
+    return "\n".join(out)
+
+
+def _u(x: float | None) -> str:
+    return f"{x:7.3g}" if x is not None and math.isfinite(x) else "    n/a"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--reps", type=int, default=8)
+    ap.add_argument("--sizes", default="1,3,10,30")
+    ap.add_argument("--thin", default="1", help="sizes run only every other round")
+    ap.add_argument("--nulls", type=int, default=1, help="nulls per round")
+    ap.add_argument("--seed", type=int, default=31)
+    ap.add_argument("--worker", type=int, default=0)
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--causes", default="", help="only these causes (and the nulls)")
+    ap.add_argument("--cache", type=Path, help="keep (and reuse) the recordings here")
+    ap.add_argument("--summary", action="store_true", help="print the per-cause limits")
+    ap.add_argument("--json", action="store_true", help="--summary as JSON")
+    ap.add_argument("--confusion", action="store_true", help="print the confusion table")
+    a = ap.parse_args()
+    if a.summary or a.confusion:  # OUT may be a glob (the workers' files together)
+        files = [Path(f) for f in sorted(glob.glob(str(a.out)))] or [a.out]
+        rows = [json.loads(x) for f in files for x in f.read_text().splitlines() if x.strip()]
+        if a.confusion:
+            from tvsd.analysis.confusion import table as confusion
+
+            print(confusion(rows, "ls"))
+        elif a.json:
+            print(json.dumps({"limits_95": limits(rows), "limits_90": limits(rows, 0.9), **nulls(rows)}))
+        else:
+            print(table(rows))
+        return
+    sizes = tuple(float(x) for x in a.sizes.split(","))
+    thin = tuple(float(x) for x in a.thin.split(",") if x)
+    todo = plan(a.reps, sizes, a.seed, thin, a.nulls)
+    if a.causes:
+        keep = set(a.causes.split(",")) | {"none"}
+        todo = [c for c in todo if c.cause in keep]
+    run(a.out, [c for k, c in enumerate(todo) if k % a.workers == a.worker], a.cache)
+
+
+if __name__ == "__main__":
+    main()
