@@ -49,3 +49,28 @@ def test_seeded_closed_loop_nulls_are_none(tmp_path):
     assert len(cases) == count and all(c.cause == "none" and c.profile == "identify" for c in cases)
     alarms = _alarms(cases, tmp_path)
     assert len(alarms) <= max_alarms, f"false alarms on {len(alarms)} of {count} closed-loop nulls: {alarms}"
+
+
+@pytest.mark.parametrize(("index", "cause"), [(59, "saturation"), (89, "deadzone")])
+def test_closed_loop_command_map_that_fits_worse_than_none_is_not_named(tmp_path, index, cause):
+    """Two closed-loop nulls (matrix seed 32, `identify` excitation, σv 0.8069) that were named
+    a command map: the law's answer to the noise makes the command correlate with the equation's
+    error, and the linearised block fitted it (`saturation` at z 6.5 and `deadzone` at z 10.1,
+    gates 3.5 and 3.8). Their structural refits fitted worse than the recorded command (LR −55
+    and −6.5 in noise variances; verdict._structural_lr), so neither is a clip or a dead zone.
+    The case is checked to still put that cause above the gate (else this test would pass
+    without exercising the rule): no tolerance is involved, the statistics are seeded."""
+    from tvsd.analysis.dataset import load
+    from tvsd.analysis.doctor import diagnose
+    from tvsd.config import load_config
+    from tvsd.sim.record import record
+
+    case = matrix.cases(n_null=index + 1, reps=0, seed=32, profiles=matrix.CLOSED_PROFILES)[index]
+    assert case.cause == "none" and case.profile == "identify"
+    cfg = matrix.case_config(load_config(), case)
+    path = tmp_path / "null.csv"
+    record(cfg, path, case.profile, 30.0, (), case.seed, rps=case.rps or 20.0)
+    dg = diagnose(load(path, cfg), cfg.plant.v0)
+    top = dg.outcome.tested[0]
+    assert top.cause == cause and top.z > dg.outcome.threshold, (top.cause, top.z, dg.outcome.threshold)
+    assert dg.cause == "none", (dg.cause, dg.effect)

@@ -26,6 +26,7 @@ DRIFT_WINDOWS = 5
 DZ_REFIT_SPAN = 0.6  # dead-zone widths profiled up to this share of the largest command
 DZ_REFIT_POINTS = 120
 DZ_CHI2_95 = 3.841  # χ²₁ 95 % point: the width's profile-likelihood interval
+STRUCTURAL_CHI2 = DZ_CHI2_95  # a command map's refit must beat the recorded command by this (_structural_lr)
 
 
 @dataclass
@@ -89,6 +90,28 @@ def _dissolved(cause: str, effect: dict[str, Any], u: np.ndarray, fs: float) -> 
     if cause == "saturation" and "u_max" in effect:
         return float(np.mean(np.abs(u) > float(effect["u_max"]))) < D.SUPPORT
     return False
+
+
+def _structural_lr(design: D.Design, out: C.Outcome, u: np.ndarray, u_app: np.ndarray) -> float:
+    """The structural refit's likelihood ratio against no effect: the drive fed the transformed
+    command (its refitted width, clip or delay) against the drive fed the recorded one, every
+    other baseline coefficient refitted in both, in units of the noise variance (χ²₁ under "no
+    effect": one parameter, the width, clip level or delay).
+
+    The decision tests a command map by a linearised block with free coefficients; the cause is
+    the map itself, one parameter with the drive's own gain. Where the block fits something no
+    such map makes, the map fitted at its best value explains nothing — its 95 % profile
+    interval reaches "no effect" (the dead zone's u0_interval reaches 0). In closed loop that is
+    what the command-side alarms were: the law's answer to the noise makes the command
+    correlate with the equation's error, which the bootstrap (conditioning on the regressors)
+    does not represent, and the linearised blocks fit it (a dead zone at z 10.1 whose refit
+    landed on the grid's first width, 0.03 V, and fitted worse than no dead zone, LR −6.5; a
+    clip at z 6.5 whose best supported level fitted worse than no clip, LR −55) — where the
+    matrix's closed-loop dead zones, clips and delays gave LR 5.5–1.4e4."""
+    none = C.gls(design.y, D.with_input(design, u), out.ar, out.keep).rss
+    fit = C.gls(design.y, D.with_input(design, u_app), out.ar, out.keep).rss
+    var = fit / max(out.n - design.X.shape[1] - 1, 1)
+    return (none - fit) / var if var > 0 else 0.0
 
 
 def dead_zone(u: np.ndarray, u0: float) -> np.ndarray:
@@ -200,7 +223,10 @@ def name_cause(
         elif above and chosen is None and t.option is not None and t.cause in D.INPUT_CAUSES:
             effect, u_app = _refit_input(design, out, t.cause, u)
             X_ext = D.with_input(design, u_app)
-            dissolved = disowned = _dissolved(t.cause, effect, u, design.prep.data.sample_rate_hz)
+            dissolved = disowned = (
+                _dissolved(t.cause, effect, u, design.prep.data.sample_rate_hz)
+                or _structural_lr(design, out, u, u_app) <= STRUCTURAL_CHI2
+            )
         if (above and chosen is None) or t.cause in (
             "imbalance",
             "cogging",
