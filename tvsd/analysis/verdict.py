@@ -204,8 +204,8 @@ def name_cause(
     """`drive_identifiable` False (closed loop, constant reference): the command answers the
     speed's noise, so J, kv, τc come out biased by the feedback and are not judged.
     `friction_judged` False (closed loop by least squares, a moving reference): the same bias
-    holds the damping's and Coulomb level's signs (their standard errors do not hold it: 3 of
-    the first 115 identify nulls of matrix seed 52 were `model_mismatch`, "negative Coulomb
+    holds the damping's and Coulomb level's signs (their standard errors do not hold it: 4 of
+    220 identify nulls of matrix seed 52 were `model_mismatch`, "negative Coulomb
     friction", at 3+ standard errors); the input gain and J are still judged.
     `instrumented` (closed loop by least squares): whether a cause whose block is a function of
     the command or the speed (the command maps, INSTRUMENTED_TOO) also passes the decision on
