@@ -198,7 +198,18 @@ def _diagnose(
     from tvsd.analysis.verdict import name_cause  # the per-cause translation (effects, checks)
 
     say("naming the cause and checking it makes physical sense")
-    verdict = name_cause(design, out, fit, params, err, data, drive_identifiable=note is None)
+    closed_ls = "omega_ref" in data.refs and design is measured
+    verdict = name_cause(
+        design,
+        out,
+        fit,
+        params,
+        err,
+        data,
+        drive_identifiable=note is None,
+        friction_judged=not closed_ls,
+        instrumented=_instrumented_check(prep, data, rotary, measured, seed) if closed_ls else None,
+    )
     say("testing the noise colour")
     rate_rows = 1.0 / float(np.median(np.diff(prep.t_rows)))
     resid = np.where(out.keep, instrument.residual(measured, design, verdict), 0.0)
@@ -209,7 +220,6 @@ def _diagnose(
     # its colour says nothing of the vibration's — with a constant reference and with an excited
     # one alike (a white-vibration identify null was `colored_noise`, τ 5 ms); not a candidate
     # unless the reference instruments the fit (iv).
-    closed_ls = "omega_ref" in data.refs and design is measured
     colour_sig = noise.colour_p < COLOUR_P and note is None and not closed_ls
     ranked.append(
         Scored("colored_noise", {"tau_s": noise.tau_s}, noise.colour_lr, noise.colour_p, colour_sig)
@@ -296,6 +306,40 @@ def _causes(
         return [first]
     say("testing the other causes against the model extended by the named one")
     return [first, *selection.further(design, verdict, params, err, data, seed)]
+
+
+def _instrumented_check(
+    prep: Any, data: Dataset, rotary: bool, measured: D.Design, seed: int
+) -> Callable[[str], bool] | None:
+    """Closed loop by least squares, with an excited reference: whether a command-side cause
+    also passes the decision on the instrumented design (tvsd.analysis.instrument: every
+    command and speed column from the reference's and identify's PRBS prediction, the left side
+    cleaned to the structural residual), built once, on demand.
+
+    The law answers the noise, so the measured command correlates with the equation's error:
+    the bootstrap, which conditions on the regressors, is not the null of the least-squares
+    command blocks (a clip at z 25.1 and a dead zone at z 5.4 on identify nulls, where the
+    structural refits fitted too). The instrumented columns are functions of signals the noise
+    does not move, so the same bootstrap is their null (the same two: z 0.8 and −0.1; the
+    matrix's closed-loop clips and delays stay far above the gate: 293 and 83–1406)."""
+    if not instrument.excited(data):
+        return None
+    memo: dict[str, C.Outcome] = {}
+
+    def holds(cause: str) -> bool:
+        if "out" not in memo:
+            iv, _ = instrument.instrumented(prep, data.offset_term, rotary)
+            iv = absorber.absorb(iv)
+            iv.back_emf = measured.back_emf
+            if iv.X.shape == measured.X.shape:
+                m = iv.rows_mask
+                theta, *_ = np.linalg.lstsq(iv.X[m], iv.y[m], rcond=None)
+                iv.y = iv.y - (measured.X - iv.X) @ theta
+            memo["out"] = C.test_all(iv, seed=seed)
+        out = memo["out"]
+        return any(t.cause == cause and t.z > out.threshold for t in out.tested)
+
+    return holds
 
 
 def _closed_loop_note(data: Dataset) -> str | None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -26,6 +27,11 @@ DRIFT_WINDOWS = 5
 DZ_REFIT_SPAN = 0.6  # dead-zone widths profiled up to this share of the largest command
 DZ_REFIT_POINTS = 120
 DZ_CHI2_95 = 3.841  # χ²₁ 95 % point: the width's profile-likelihood interval
+# Causes besides the command maps whose blocks are functions of the command or the speed (the
+# drift of R is u·t; of kv and friction, ω's columns · t; the direction split, ω's): in closed loop
+# they are confirmed on the instrumented design too (name_cause's `instrumented`).
+INSTRUMENTED_TOO = ("drift", "friction_asymmetry")
+STRUCTURAL_CHI2 = DZ_CHI2_95  # a command map's refit must beat the recorded command by this (_structural_lr)
 
 
 @dataclass
@@ -89,6 +95,28 @@ def _dissolved(cause: str, effect: dict[str, Any], u: np.ndarray, fs: float) -> 
     if cause == "saturation" and "u_max" in effect:
         return float(np.mean(np.abs(u) > float(effect["u_max"]))) < D.SUPPORT
     return False
+
+
+def _structural_lr(design: D.Design, out: C.Outcome, u: np.ndarray, u_app: np.ndarray) -> float:
+    """The structural refit's likelihood ratio against no effect: the drive fed the transformed
+    command (its refitted width, clip or delay) against the drive fed the recorded one, every
+    other baseline coefficient refitted in both, in units of the noise variance (χ²₁ under "no
+    effect": one parameter, the width, clip level or delay).
+
+    The decision tests a command map by a linearised block with free coefficients; the cause is
+    the map itself, one parameter with the drive's own gain. Where the block fits something no
+    such map makes, the map fitted at its best value explains nothing — its 95 % profile
+    interval reaches "no effect" (the dead zone's u0_interval reaches 0). In closed loop that is
+    what the command-side alarms were: the law's answer to the noise makes the command
+    correlate with the equation's error, which the bootstrap (conditioning on the regressors)
+    does not represent, and the linearised blocks fit it (a dead zone at z 10.1 whose refit
+    landed on the grid's first width, 0.03 V, and fitted worse than no dead zone, LR −6.5; a
+    clip at z 6.5 whose best supported level fitted worse than no clip, LR −55) — where the
+    matrix's closed-loop dead zones, clips and delays gave LR 5.5–1.4e4."""
+    none = C.gls(design.y, D.with_input(design, u), out.ar, out.keep).rss
+    fit = C.gls(design.y, D.with_input(design, u_app), out.ar, out.keep).rss
+    var = fit / max(out.n - design.X.shape[1] - 1, 1)
+    return (none - fit) / var if var > 0 else 0.0
 
 
 def dead_zone(u: np.ndarray, u0: float) -> np.ndarray:
@@ -184,9 +212,19 @@ def name_cause(
     err: dict[str, float],
     data: Dataset,
     drive_identifiable: bool = True,
+    friction_judged: bool = True,
+    instrumented: Callable[[str], bool] | None = None,
 ) -> Verdict:
     """`drive_identifiable` False (closed loop, constant reference): the command answers the
-    speed's noise, so J, kv, τc come out biased by the feedback and are not judged."""
+    speed's noise, so J, kv, τc come out biased by the feedback and are not judged.
+    `friction_judged` False (closed loop by least squares, a moving reference): the same bias
+    holds the damping's and Coulomb level's signs (their standard errors do not hold it: 4 of
+    220 identify nulls of matrix seed 52 were `model_mismatch`, "negative Coulomb
+    friction", at 3+ standard errors); the input gain and J are still judged.
+    `instrumented` (closed loop by least squares): whether a cause whose block is a function of
+    the command or the speed (the command maps, INSTRUMENTED_TOO) also passes the decision on
+    the instrumented design (doctor._instrumented_check); a command map that does not is
+    dissolved like a refit that lands on no effect, the others are not named."""
     from tvsd.analysis.doctor import Scored
 
     J = params["J"]
@@ -214,7 +252,11 @@ def name_cause(
         elif above and chosen is None and t.option is not None and t.cause in D.INPUT_CAUSES:
             effect, u_app = _refit_input(design, out, t.cause, u)
             X_ext = D.with_input(design, u_app)
-            dissolved = disowned = _dissolved(t.cause, effect, u, design.prep.data.sample_rate_hz)
+            dissolved = disowned = (
+                _dissolved(t.cause, effect, u, design.prep.data.sample_rate_hz)
+                or _structural_lr(design, out, u, u_app) <= STRUCTURAL_CHI2
+                or (instrumented is not None and not instrumented(t.cause))
+            )
         if (above and chosen is None) or t.cause in (
             "imbalance",
             "cogging",
@@ -235,6 +277,8 @@ def name_cause(
             # not the structural refit, which can trade differently with friction.
             X_cv = X_ext if t.option is None else np.column_stack([design.X, t.option.block])
             ok = C.heldout_gain(design, out, X_cv) > 0.0
+        if ok and chosen is None and instrumented is not None and t.cause in INSTRUMENTED_TOO:
+            ok = instrumented(t.cause)  # a function of the command or the speed (doctor.py)
         ranked.append(Scored(t.cause, effect, t.z, t.p, ok and chosen is None))
         if ok and chosen is None:
             chosen = (t.cause, effect, X_ext, u_app)
@@ -249,7 +293,8 @@ def name_cause(
         X_rigid, b = absorber.rigid(design, X_fin)
         fin = C.gls(design.y, X_rigid, out.ar, out.keep)
         params, err = _physical(design, fin.theta[:b], fin.cov[:b, :b], data.b_u, data.b_omega)
-    reason = sense.baseline_problem(params, err) if drive_identifiable else None
+    judged = err if friction_judged else {**err, "damping": math.inf, "tau_c": math.inf}
+    reason = sense.baseline_problem(params, judged) if drive_identifiable else None
     if chosen is not None and reason is None:
         problem = sense.effect_problem(cause, effect_out, u, params["time_constant_s"], data.sample_rate_hz)
         if problem is not None:
