@@ -24,8 +24,11 @@ With identify's PRBS recorded (`u_exc`, exogenous: drawn before the run, added a
 the first stage predicts from it too, and the second stage's left side is cleaned of
 (X − X̂)·θ_IV (`instrumented(measured=...)`), so the bootstrap sees the structural residual.
 
-Status: opt-in (`diagnose(..., iv=True)`; `python -m tvsd.analysis.matrix_closed --variants
-ls,iv`), not the default, because it did not measure better. On 104 cases of the closed-loop
+Status: two uses. As a confirmation, by default: in closed loop by least squares a
+command-side cause (dead zone, clip, delay, drift, friction asymmetry) must also pass the gate on
+the instrumented design (tvsd.analysis.doctor._instrumented_check; README, "Closed-loop false
+alarms"). As the whole analysis, opt-in (`diagnose(..., iv=True)`; `python -m
+tvsd.analysis.matrix_closed --variants ls,iv`), not the default, because it did not measure better. On 104 cases of the closed-loop
 family (docs/measurements/closed-loop-ls-iv.w*.jsonl, the same files through both): 3 false
 alarms in 10 nulls for both, 52 of 94 effect cases named against least squares' 49 — better on
 delay and dead zone at 3×, no better elsewhere, and ≈ 30 % slower. With the reversal segment
