@@ -239,3 +239,26 @@ def test_no_allocation_per_tick_with_the_kernels_heartbeat(setup: Setup) -> None
         os.close(fd)
     assert r.fault and hb.sent > 1000 and hb.cuts > 1000 and hb.errors == 0, hb
     assert (counts[1] - counts[0]) / 5000 == 0.0
+
+
+def test_late_input_within_the_stale_limit_is_carried_forward_to_it(setup: Setup) -> None:
+    """A measurement 30 ms old, with the stale limit at 200 ms, is input the law acts on: its
+    angle is carried forward over its whole age, not held after EXTRAPOLATE_MAX_NS (10 ms). Held,
+    the angle reference ran on against a frozen angle, slipped at +max_lag, and the late frames'
+    true angle then left the shaft max_lag ahead: the spin scan's sag to 18.9 rev/s. Exact as
+    the test above (the recorded t is the wake time on the same clock)."""
+    r = Runner(setup, sil=False)
+    r.position(0.0)
+    r.start()
+    wait_for(lambda: r.ticks, 10.0, "5 ticks", ok=lambda n: n > 5)
+    sample_ns = time.monotonic_ns() - 30_000_000
+    r.measured(0.1, 2.0, sample_ns=sample_ns)
+    r.stale_after(0.2, 0.5)  # after the first measurement: none yet would latch STALE at once
+    first = r.ticks
+    wait_for(lambda: r.ticks, 10.0, "50 more ticks", ok=lambda n: n > first + 50)
+    r.stop(5.0)
+    assert not r.held and not r.fault
+    rec = r.recent_ticks(40)
+    age = (r.start_ns + rec["t"] * 1e9 - sample_ns) / 1e9
+    assert np.all(age > EXTRAPOLATE_MAX_NS / 1e9) and np.all(age < 0.2)
+    np.testing.assert_allclose(rec["phi"], 0.1 + 2.0 * age, rtol=0, atol=1e-9)

@@ -57,6 +57,7 @@ from tvsd.control.words import (
     K_HELD,
     K_MEAS_SEQ,
     K_SAMPLE_NS,
+    K_STALE_NS,
     K_STREAK_LIMIT,
     MODE_IDLE,
     MODE_POSITION,
@@ -91,8 +92,11 @@ from tvsd.model import params as P
 from tvsd.model import plant as K
 
 # The measured angle is carried forward at the measured speed from its sampling instant to each
-# tick, at most this far: beyond it the link is failing (the stale limit latches at 40 ms) and the
-# angle is held.
+# tick, at most this far, or up to the stale limit (K_STALE_NS) if that is longer: input younger
+# than it is the law's to act on (tvsd.control.hold), so its angle must move on. Held at 10 ms
+# while the law ran on to 40 ms (or a config's longer limit), the angle reference integrated on,
+# slipped at +max_lag, and the late frames' true angle then put the shaft a turn-fraction ahead:
+# a -max_lag slip the law paid back by slowing the drive (the spin scan's 18.9 rev/s for 20).
 EXTRAPOLATE_MAX_NS = 10_000_000
 MAX_DT_S = 0.05  # a longer stall (suspend, debugger) advances the references by this much only
 MAX_PLANT_STEPS = 1000  # SIL catch-up cap per tick (0.1 s at 10 kHz); beyond it sim time lags
@@ -198,7 +202,7 @@ def control_loop(
             # The encoder was read at sample_ns, up to a frame period (+ the link) ago: the law
             # sees the angle now. Held, ε would grow by ω·period between frames (0.063 rad at
             # 2.5 kHz and 25 rev/s: G0·ε runs over tanh's whole range) and the command would saw.
-            age = min(max(wake - sample_ns, 0), EXTRAPOLATE_MAX_NS)
+            age = min(max(wake - sample_ns, 0), max(EXTRAPOLATE_MAX_NS, ints[K_STALE_NS]))
             phi += omega * (age / 1e9)
         mode = int(vals[V_MODE])
         umax = vals[V_UMAX]
