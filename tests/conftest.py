@@ -168,6 +168,19 @@ def setup():  # -> tvsd.control.setup.Setup (imported here: not every test needs
 
 
 @pytest.fixture
+def runner(setup):  # -> tvsd.control.runner.Runner, started; stopped after the test
+    """A control thread on the session's set-up, without the SIL plant (the test feeds it)."""
+    from tvsd.control.runner import Runner
+
+    r = Runner(setup, sil=False)
+    r.start()
+    try:
+        yield r
+    finally:
+        r.stop(timeout=2.0)
+
+
+@pytest.fixture
 def sock_path(tmp_path: Path):  # -> Iterator[Path]
     """A socket path in tmp_path, or in a short directory when tmp_path would exceed the 107-byte
     limit of sun_path (the RPC server's tests)."""

@@ -20,11 +20,10 @@ import os
 import threading
 import time
 import tty
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import replace
 
-import pytest
 from conftest import until, wait_for
 
 from tvsd.config import load_config
@@ -120,16 +119,6 @@ class PacedMcu:
                 self._send("heartbeat_ack", host_us, self.ticks())
             elif name == "stats_req":
                 self._send("stats", self.decoder.stats.frames, 0, 0, 0, 0, 0, 0, 0)
-
-
-@pytest.fixture
-def runner(setup: object) -> Iterator[Runner]:
-    r = Runner(setup, sil=False)  # type: ignore[arg-type]
-    r.start()
-    try:
-        yield r
-    finally:
-        r.stop(timeout=2.0)
 
 
 @asynccontextmanager

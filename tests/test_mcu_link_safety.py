@@ -34,16 +34,6 @@ LINK_TIMEOUT_S = 0.040  # the control thread's stale limit (mcu.link_timeout_ms)
 STATE_DIV = 10  # a state frame every 1 ms
 
 
-@pytest.fixture
-def runner(setup: object) -> Iterator[Runner]:
-    r = Runner(setup, sil=False)  # type: ignore[arg-type]
-    r.start()
-    try:
-        yield r
-    finally:
-        r.stop(timeout=2.0)
-
-
 class Seen:
     def __init__(self) -> None:
         self.states: list[float] = []  # arrival, time.monotonic() on the I/O thread
