@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from tvsd.cli.export_states import OMEGA_SOURCE, from_states
 from tvsd.cli.output import warn
 from tvsd.errors import EXIT_OK, UsageError
 from tvsd.recording.csvfile import write
@@ -41,6 +42,8 @@ LISTED_GAPS = 50  # gaps listed one by one in the metadata; more are only counte
 U_UNIT = "V"  # the daemon's command is the drive voltage (docs/architecture.md, u_unit)
 EXCITATION_CHANNEL = "excitation"  # what identify played (tvsd/daemon/session_recording.py)
 U_EXC = "u_exc"  # its voltage, per sample: the doctor's instrument in closed loop
+STATES_CHANNEL = "states"  # the MCU's encoder frames (tvsd/daemon/session_recording.py)
+OMEGA_LOOP = "omega_loop"  # the control thread's speed measurement (omega before the states channel)
 PWM_CHANNEL = "pwm"  # the PWM frames the daemon sent (tvsd/daemon/session_recording.py)
 U_SOURCE = "the PWM frames sent to the drive, held (u_law: the control law's 1 ms mean)"
 U_LAW = "u_law"  # the control law's command, the 1 ms mean of its ticks (u before the pwm channel)
@@ -95,6 +98,21 @@ def _run(args: argparse.Namespace) -> int:
         t_first = float(rec.channels[args.channel]["t"][0]) + float(table.meta["start_s"])  # type: ignore[arg-type]
         table.columns[U_LAW] = table.columns["u"]
         table.columns["u"] = sent_column(rec.channels[PWM_CHANNEL], t_first, table, table.columns[U_LAW])
+    measured = None
+    if args.channel == LOOP_CHANNEL and len(rec.channels.get(STATES_CHANNEL, ())) > 1:
+        t_first = float(rec.channels[args.channel]["t"][0]) + float(table.meta["start_s"])  # type: ignore[arg-type]
+        cols = table.columns
+        measured = from_states(
+            rec.channels[STATES_CHANNEL],
+            t_first,
+            len(table.t),
+            1.0 / table.rate_hz,
+            cols["omega"],
+            cols["phi"],
+        )
+        if measured is not None:
+            cols[OMEGA_LOOP] = cols["omega"]
+            cols["omega"], cols["phi"], _ = measured
     if args.channel == LOOP_CHANNEL and EXCITATION_CHANNEL in rec.channels:
         t_first = float(rec.channels[args.channel]["t"][0]) + float(table.meta["start_s"])  # type: ignore[arg-type]
         rows = played(rec.channels[EXCITATION_CHANNEL], rec.marks)
@@ -115,6 +133,11 @@ def _run(args: argparse.Namespace) -> int:
         **(
             {"u_source": "the PWM frames sent to the drive, held (u_law: the control law's mean)"}
             if sent
+            else {}
+        ),
+        **(
+            {"omega_source": OMEGA_SOURCE, "omega_from_frames": f"{measured[2]} of {len(table.t)} samples"}
+            if measured is not None
             else {}
         ),
         **table.meta,
@@ -165,7 +188,7 @@ def _fault_meta(table: Table) -> dict[str, object]:
 def write_csv(path: Path, table: Table, meta: dict[str, object]) -> None:
     cols = dict(table.columns)
     u, omega, phi = cols.pop("u"), cols.pop("omega"), cols.pop("phi", None)
-    order = ("omega_ref", "phi_ref", "u_ff", U_EXC, U_LAW, "gap", "fault")
+    order = ("omega_ref", "phi_ref", "u_ff", U_EXC, U_LAW, OMEGA_LOOP, "gap", "fault")
     extra = {name: cols.pop(name) for name in order if name in cols}
     extra.update(cols)
     write(path, table.t, u, omega, phi, table.rate_hz, meta, {k: np.asarray(v) for k, v in extra.items()})

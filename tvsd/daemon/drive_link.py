@@ -111,6 +111,12 @@ class DriveLink:
         self._sent_host = np.zeros(self._sent_n)  # ring of the PWM frames sent: host time, volts
         self._sent_volts = np.zeros(self._sent_n)
         self._sent = 0
+        # ring of the state frames received, for the recording's `states` channel: MCU ticks,
+        # encoder count, the sampling instant on the host's clock (NaN before the clock sync)
+        self._st_ticks = np.zeros(self._sent_n, dtype=np.int64)
+        self._st_enc = np.zeros(self._sent_n, dtype=np.int64)
+        self._st_host = np.zeros(self._sent_n)
+        self._states = 0
         self._frame_tick = 0  # the runner's tick count when the last PWM frame was made
         self._pwm_due = False  # a state came in the batch being handled: answer it with a PWM frame
         self._answering = True  # False once closing: PWM 0 is the last duty sent
@@ -212,6 +218,9 @@ class DriveLink:
         # there. Unknown before the clock sync, and for a frame placed by the fit alone.
         sampled = self.to_host(s.mcu_ticks) if s.exact else math.nan
         sample_ns = round(sampled * 1e9) if math.isfinite(sampled) else None
+        k = self._states % self._sent_n
+        self._st_ticks[k], self._st_enc[k], self._st_host[k] = s.mcu_ticks, s.encoder, sampled
+        self._states += 1
         arrival = round(s.host_time * 1e9)
         due = self.chain.due(s, arrival, self.clock_hz, self.state_div)
         self.runner.measured(phi, omega, arrival, sample_ns, due_ns=due, chain_ns=self.chain.chain_ns)
@@ -265,6 +274,15 @@ class DriveLink:
         first = min(max(seq, end - (self._sent_n - SENT_SLACK)), end)
         idx = np.arange(first, end) % self._sent_n
         return self._sent_host[idx], self._sent_volts[idx], end
+
+    def states_since(self, seq: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """The state frames received from number `seq` on, oldest first (as `sent_since`): MCU
+        ticks, encoder counts, sampling instants on the host's clock (time.monotonic; NaN before
+        the clock sync), and the number to ask from next time."""
+        end = self._states
+        first = min(max(seq, end - (self._sent_n - SENT_SLACK)), end)
+        idx = np.arange(first, end) % self._sent_n
+        return self._st_ticks[idx], self._st_enc[idx], self._st_host[idx], end
 
     def sent_volts(self, t_mcu: np.ndarray) -> np.ndarray:
         """The motor voltage commanded at MCU times: each PWM frame's from when it was sent (its

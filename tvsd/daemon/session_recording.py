@@ -16,6 +16,11 @@ any of them to numpy/pandas users):
 - `pwm`        every PWM frame the daemon sent to the MCU: t (the loop's time axis, as `loop`)
                and the volts it carried (duty × drive.u_max_v): what the drive was told to
                apply, which `tvsctl export` writes as `u` (the law's 1 ms mean is `u_law`).
+- `states`     every encoder state frame from the MCU: t (its sampling instant, from the MCU's tick
+               stamp by the link's clock sync, on the loop's time axis; NaN before the sync),
+               mcu_ticks, encoder (count), phi (rad). `tvsctl export` makes `phi` and `omega`
+               from them: the angle where and when the MCU sampled it, whatever the frames'
+               way to the control thread (README, model doctor step 8).
 - `excitation` what `identify` played (tvsd/daemon/identify.py): t (the loop's time axis, as
                `loop`), d_rps added to the speed reference, d_volts added to the command.
 Marks: state changes, faults, windows, with their time.
@@ -45,6 +50,7 @@ IMU_FIELDS = (
     ("ax", "<f4"), ("ay", "<f4"), ("az", "<f4"), ("gx", "<f4"), ("gy", "<f4"), ("gz", "<f4"),
 )  # fmt: skip
 PWM_FIELDS = (("t", "<f8"), ("volts", "<f8"))
+STATE_FIELDS = (("t", "<f8"), ("mcu_ticks", "<i8"), ("encoder", "<i8"), ("phi", "<f8"))
 IMU_SENSORS = {"pl": 0, "sa": 1}
 
 
@@ -67,6 +73,8 @@ class SessionRecording:
         self.imu = r.channel("imu", list(IMU_FIELDS))
         self.pwm = r.channel("pwm", list(PWM_FIELDS))
         self._next_frame = -1  # the number of the next PWM frame to record (-1: from the first seen)
+        self.states = r.channel("states", list(STATE_FIELDS))
+        self._next_state = -1  # the number of the next state frame to record (as _next_frame)
         self._carry = np.zeros(0, dtype=TICK_DTYPE)  # ticks of the open bin
 
     @property
@@ -79,6 +87,10 @@ class SessionRecording:
         With the drive link, the PWM frames it sent since (`pwm`)."""
         if drive is not None:
             self.pwm_frames(*drive.sent_since(max(self._next_frame, 0)), start_ns=runner.start_ns)
+            ticks, enc, host, end = drive.states_since(max(self._next_state, 0))
+            self.state_frames(
+                ticks, enc, host, end, rad_per_count=drive.rad_per_count, start_ns=runner.start_ns
+            )
         batch = runner.ticks_since(self._next_tick)
         self._next_tick = batch.next
         if batch.lost:
@@ -120,6 +132,25 @@ class SessionRecording:
         if first < 0 or not len(host):
             return
         self.pwm.append({"t": host - start_ns / 1e9, "volts": volts})
+
+    def state_frames(
+        self,
+        ticks: np.ndarray,
+        enc: np.ndarray,
+        host: np.ndarray,
+        end: int,
+        *,
+        rad_per_count: float,
+        start_ns: int,
+    ) -> None:
+        """Encoder state frames received (MCU ticks, counts, sampling instants on time.monotonic)
+        up to frame number `end`; as `pwm_frames`, those before the recording began are left out."""
+        first = self._next_state
+        self._next_state = end
+        if first < 0 or not len(ticks):
+            return
+        t = host - start_ns / 1e9
+        self.states.append({"t": t, "mcu_ticks": ticks, "encoder": enc, "phi": enc * rad_per_count})
 
     def window(self, rows: np.ndarray, reason: str) -> None:
         """A full-rate window of control ticks (TICK_DTYPE rows), marked with why it was taken."""

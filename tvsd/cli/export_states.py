@@ -1,0 +1,61 @@
+"""`tvsctl export`'s phi and omega from the MCU's encoder frames (the recording's `states` channel).
+
+The loop channel's omega and phi are what the control thread had: each state frame's angle and a
+speed over its last 2 ms of frames, held from the frame's *arrival* until the next, averaged per
+1 ms. That measurement lags the shaft (the 2 ms window's centre, the frame's way over the link, the
+hold: 3 ms on the SIL daemon) and, where the frames reach the host late in a burst (the link's
+I/O thread late, a pty's batch), it stands still and then jumps: a step in phi at an instant that
+has nothing to do with the shaft, broadband, in the model doctor's band, which a `cogging` of a
+high order (13-20 on four SIL identify exports) or a longer `delay` fitted (README, model doctor
+step 8). The frames carry the MCU's own tick stamp of the instant it read the encoder, so the
+export places each count there (the link's clock sync maps ticks to the host's clock) and writes,
+per loop sample, the angle at the sample's end and the mean speed over the sample (the angle's
+difference over its 1 ms, as `u` is the mean of the same 1 ms): exact but for the encoder's
+quantisation (±½ count at each end: 0.31 rad/s rms at 8192 counts/rev, almost all above the
+doctor's 100 Hz band), with no lag and no hold.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+MAX_FRAME_GAP_S = 5e-3  # frames further apart than this (a link outage): the loop's own values kept
+OMEGA_SOURCE = (
+    "the MCU's encoder frames at their sampling instants (channel states): omega the mean speed over "
+    "each sample, phi the angle at its end (omega_loop: the control thread's measurement)"
+)
+
+
+def from_states(
+    rows: np.ndarray, t_first: float, n: int, period: float, omega: np.ndarray, phi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int] | None:
+    """(omega, phi, samples taken from the frames) on the loop's grid — sample k the bin
+    (t_first + (k−1)·period, t_first + k·period] — from the state frames `rows` (t, mcu_ticks,
+    phi); the loop's `omega`/`phi` where the frames do not cover a bin. None when the frames
+    cannot be placed (no clock sync: fewer than two sampling instants known)."""
+    order = np.argsort(rows["mcu_ticks"], kind="stable")
+    rows = rows[order]
+    ticks = rows["mcu_ticks"].astype(float)
+    keep = np.concatenate([[True], np.diff(ticks) > 0])  # a frame recorded twice: once
+    rows, ticks = rows[keep], ticks[keep]
+    t = rows["t"].astype(float)
+    known = np.isfinite(t)
+    if np.count_nonzero(known) < 2:
+        return None
+    # Instants the clock sync had not placed (before it was ready): by the MCU's ticks, on the
+    # line through the placed ones (the MCU's crystal is linear over a recording).
+    if not np.all(known):
+        slope, icpt = np.polyfit(ticks[known], t[known], 1)
+        t = np.where(known, t, icpt + slope * ticks)
+    angle = rows["phi"].astype(float)
+    edges = t_first - period + np.arange(n + 1) * period
+    at = np.interp(edges, t, angle)
+    # an edge is covered when frames on both sides lie within MAX_FRAME_GAP_S of each other
+    j = np.searchsorted(t, edges, side="right")
+    inside = (j > 0) & (j < len(t))
+    jj = np.clip(j, 1, len(t) - 1)
+    covered = inside & (t[jj] - t[jj - 1] <= MAX_FRAME_GAP_S)
+    ok = covered[:-1] & covered[1:]
+    w = np.where(ok, np.diff(at) / period, omega)
+    p = np.where(ok, at[1:], phi)
+    return w, p, int(np.count_nonzero(ok))
