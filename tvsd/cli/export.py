@@ -8,7 +8,9 @@ Columns: t, u, omega, phi, then omega_ref, phi_ref, u_ff (the daemon's reference
 voltage `tvsctl identify` added after the law, from the recording's `excitation` channel: the
 doctor's instrument; 0 outside the run; only when the recording holds one), u_law (the control
 law's command, the 1 ms mean of its 10 kHz ticks, when `u` is from the `pwm` channel: the frames
-the daemon sent, held, averaged per sample, which is what the drive was told to apply), gap (1: a
+the daemon sent, held, averaged per sample, which is what the drive was told to apply), omega_loop
+(the control thread's speed measurement, when omega and phi come from the recording's `states`
+channel: the MCU's encoder frames at their sampling instants, tvsd/cli/export_states.py), gap (1: a
 sample the recording lacked, filled by linear interpolation), fault (faults marked in that sample),
 and any other numeric field of the channel. Metadata lines: the source, ``u_unit: V`` (the daemon
 commands volts), the gaps (how many, the missing samples, the first ones listed), the faults (one
