@@ -144,10 +144,10 @@ class SessionRecording:
         start_ns: int,
     ) -> None:
         """Encoder state frames received (MCU ticks, counts, sampling instants on time.monotonic)
-        up to frame number `end`; as `pwm_frames`, those before the recording began are left out."""
-        first = self._next_state
+        up to frame number `end`. The first call's are kept too (the ring's last 0.8 s): the loop's
+        first bins lie before the first drain, and the export places every bin among frames."""
         self._next_state = end
-        if first < 0 or not len(ticks):
+        if not len(ticks):
             return
         t = host - start_ns / 1e9
         self.states.append({"t": t, "mcu_ticks": ticks, "encoder": enc, "phi": enc * rad_per_count})
