@@ -53,6 +53,7 @@ FIFO_FRAMES = reg.FIFO_SIZE // reg.FRAME_BYTES  # 85: more samples than this unr
 # the soak), below the MCU link's I/O thread (60) and the control thread (80). The FIFO holds
 # 83 ms at 1 kHz: the reader may wait for the GIL, never for the loop's turn on the CPU.
 READER_PRIORITY = 50
+WAKE_LATE_S = 0.02  # a wake-up this late is counted (ImuReader.wake_late): a poll interval
 
 
 @dataclass(frozen=True)
@@ -373,6 +374,9 @@ class ImuReader:
         self._stop = threading.Event()
         self._lock = threading.Lock()  # status() may come from another thread than the polls
         self._thread: threading.Thread | None = None
+        # the thread's wake-ups after its sleeps: how late (the CPU, the GIL: not the bus)
+        self.wake_late_max_s = 0.0
+        self.wake_late = 0  # over WAKE_LATE_S
 
     def step(self) -> list[ImuBatch]:
         """Poll every sensor that is due; never raises for device trouble."""
@@ -395,7 +399,14 @@ class ImuReader:
 
     def _wait(self) -> None:
         due = min(s.next_time for s in self.sensors)
-        self.clock.sleep(max(due - self.clock.now(), 0.0005))
+        now = self.clock.now()
+        asked = max(due - now, 0.0005)
+        self.clock.sleep(asked)
+        late = self.clock.now() - now - asked
+        if late > self.wake_late_max_s:
+            self.wake_late_max_s = late
+        if late > WAKE_LATE_S:
+            self.wake_late += 1
 
     def run_for(self, seconds: float) -> list[ImuBatch]:
         """Run inline until `seconds` of clock time have passed (simulated or real)."""
