@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tvsd.errors import DeviceError
+from tvsd.hw import imu_joint as joint
 from tvsd.hw import mpu6050 as reg
 from tvsd.hw.imu_clock import Clock, ClockFit, MonotonicClock
 from tvsd.hw.mpu6050 import ImuSettings, Mpu6050
@@ -138,12 +139,31 @@ class SensorReader:
         except DeviceError as exc:
             self._failed(str(exc))
         else:
-            self._failures = 0
-            if self.up:
-                self.state = "ok"
-            self.next_time = self._next_due()
+            self._ok()
+        return self.take()
+
+    def take(self) -> list[ImuBatch]:
+        """The batches confirmed since the last call."""
         ready, self._ready = self._ready, []
         return ready
+
+    def _ok(self) -> None:
+        """After a good poll: healthy, and the next one scheduled."""
+        self._failures = 0
+        if self.up:
+            self.state = "ok"
+        self.next_time = self._next_due()
+
+    def plain(self) -> bool:
+        """Whether the next poll is a plain one (FIFO_COUNT, the frames, INT_STATUS) that may
+        share its transfers with the other sensor's (tvsd.hw.imu_joint): running, healthy,
+        nothing to recover or check first. A sensor without data for a while is checked (is it
+        still running?) when its count read finds nothing (tvsd.hw.imu_joint): a FIFO that fills
+        says so, and a check on every poll of a reader behind its FIFO slowed it further."""
+        return self.up and not self._failures and not self._need_resync and not self._check_running
+
+    def _stale(self) -> bool:
+        return self.clock.now() - self._last_data > 5 * self.settings.poll_interval_s
 
     def _next_due(self) -> float:
         """After a good poll: a bring-up stage's wait from now; else the next poll at a fixed
@@ -244,23 +264,13 @@ class SensorReader:
         self.epoch += 1
         self._last_data = self.clock.now()
 
-    def _resync(self) -> None:
-        self._pending.clear()
-        self._need_resync = True  # stays set if the reset fails, so the next poll retries it
-        self.driver.reset_fifo()
-        self._cut_t = self.clock.now()
-        self._need_resync = False
-        self.resyncs += 1
-        self._new_epoch()
-
     def _poll(self) -> None:
         if not self.up and not self._bring_up():
             return
         if self._need_resync:
-            self._recover(overflow=self.driver.read_overflow())
+            self._recover()
             return
-        stale = self.clock.now() - self._last_data > 5 * self.settings.poll_interval_s
-        if self._check_running or stale:  # a sensor reset behind our back is asleep, FIFO off
+        if self._check_running or self._stale():  # a sensor reset behind our back is asleep, FIFO off
             if not self.driver.is_running():
                 log.warning("%s IMU was reset; configuring it again", self.name)
                 self.restarts += 1
@@ -270,18 +280,9 @@ class SensorReader:
             self._check_running = False
         count = self.driver.fifo_count()
         t_count = self.clock.now()  # after the read: see ClockFit.t0
-        frames = count // reg.FRAME_BYTES
-        self._timing(t_count, frames)
-        if count % reg.FRAME_BYTES:  # part of a frame went missing: the FIFO is misaligned
-            self._recover(overflow=self.driver.read_overflow())
+        frames = self.counted(count, t_count)
+        if frames is None:
             return
-        if self._epoch_open:
-            self._open_epoch(t_count, frames)
-        held = sum(len(p) for p in self._pending)
-        if frames or held:
-            self.fit.add(t_count, self.k_next + held + frames - 1, self.epoch)
-        if frames:
-            self._last_data = t_count
         # frames read before a failed transfer stay pending: every transfer is whole frames
         try:
             overflow = self.driver.read_frames_then_overflow(frames, self._pending)
@@ -291,6 +292,28 @@ class SensorReader:
             if exc.errno not in (errno.ENXIO, errno.EREMOTEIO):
                 self._need_resync = True
             raise
+        self.read_done(overflow, t_count)
+
+    def counted(self, count: int, t_count: float) -> int | None:
+        """A FIFO_COUNT read (`count` bytes, the read done at `t_count`): the whole frames to read
+        now, or None if the FIFO was misaligned (then recovered: bus I/O, may raise)."""
+        frames = count // reg.FRAME_BYTES
+        self._timing(t_count, frames)
+        if count % reg.FRAME_BYTES:  # part of a frame went missing: the FIFO is misaligned
+            self._recover()
+            return None
+        if self._epoch_open:
+            self._open_epoch(t_count, frames)
+        held = sum(len(p) for p in self._pending)
+        if frames or held:
+            self.fit.add(t_count, self.k_next + held + frames - 1, self.epoch)
+        if frames:
+            self._last_data = t_count
+        return frames
+
+    def read_done(self, overflow: bool, t_count: float) -> None:
+        """The frames counted are pending, INT_STATUS read after them: deliver, or recover from
+        an overflow (which misaligned what was read: all of it is discarded)."""
         if overflow:
             self._recover(overflow=True)
         else:
@@ -317,13 +340,21 @@ class SensorReader:
         self.k_next = first
         self._epoch_open = False
 
-    def _recover(self, overflow: bool) -> None:
-        """Deliver what the status read vouches for, then restart the FIFO aligned."""
-        if overflow:
+    def _recover(self, overflow: bool | None = None) -> None:
+        """Deliver what the status read vouches for, then restart the FIFO aligned (a resync).
+        `overflow` None: INT_STATUS not read yet; it is, in the reset's own transfer, before
+        the reset. If the reset fails, the next poll tries again (pending frames kept)."""
+        self._need_resync = True  # stays set if the reset fails, so the next poll retries it
+        flag = self.driver.reset_fifo(status_first=overflow is None)
+        self._cut_t = self.clock.now()
+        self._need_resync = False
+        if overflow if overflow is not None else flag:
             self.overflows += 1
         else:
             self._deliver()
-        self._resync()
+        self._pending.clear()
+        self.resyncs += 1
+        self._new_epoch()
 
     def _deliver(self) -> None:
         if not self._pending:
@@ -374,21 +405,37 @@ class ImuReader:
         self._stop = threading.Event()
         self._lock = threading.Lock()  # status() may come from another thread than the polls
         self._thread: threading.Thread | None = None
+        self.joint = True  # poll all sensors together when they allow it (tvsd.hw.imu_joint)
+        self.joint_polls = 0
         # the thread's wake-ups after its sleeps: how late (the CPU, the GIL: not the bus)
         self.wake_late_max_s = 0.0
         self.wake_late = 0  # over WAKE_LATE_S
 
     def step(self) -> list[ImuBatch]:
-        """Poll every sensor that is due; never raises for device trouble."""
-        out = []
-        for sensor in self.sensors:
+        """Poll every sensor that is due; never raises for device trouble. All plain polls
+        (SensorReader.plain) go together (tvsd.hw.imu_joint), else each sensor polls alone."""
+        out: list[ImuBatch] = []
+        polled: list[SensorReader] = []
+        if self._joint_possible():
             try:
                 with self._lock:
-                    batches = sensor.poll()
+                    polled = self._joint()
             except Exception as exc:  # a bug must not kill the reader: record it, back off
-                log.exception("%s IMU reader error", sensor.name)
-                sensor._failed(f"internal error: {type(exc).__name__}: {exc}")
-                continue
+                log.exception("IMU reader error (joint poll)")
+                for sensor in self.sensors:
+                    sensor._failed(f"internal error: {type(exc).__name__}: {exc}")
+                polled = list(self.sensors)
+        for sensor in self.sensors:
+            if sensor in polled:
+                batches = sensor.take()
+            else:
+                try:
+                    with self._lock:
+                        batches = sensor.poll()
+                except Exception as exc:  # a bug must not kill the reader: record it, back off
+                    log.exception("%s IMU reader error", sensor.name)
+                    sensor._failed(f"internal error: {type(exc).__name__}: {exc}")
+                    continue
             out.extend(batches)
             if self.on_batch is not None:
                 for batch in batches:
@@ -396,6 +443,61 @@ class ImuReader:
             if self.on_poll is not None:
                 self.on_poll(sensor)
         return out
+
+    def _joint_possible(self) -> bool:
+        if len(self.sensors) < 2 or not self.joint:
+            return False
+        bus = self.sensors[0].driver.bus
+        if not hasattr(bus, "i2c_rdwr") or any(s.driver.bus is not bus for s in self.sensors):
+            return False
+        now = self.clock.now()
+        return any(s.next_time <= now for s in self.sensors) and all(s.plain() for s in self.sensors)
+
+    def _joint(self) -> list[SensorReader]:
+        """One poll of all sensors (tvsd.hw.imu_joint); the sensors it polled (none: the count
+        read failed, nothing moved, each polls alone now and finds whose fault it is). One
+        schedule for all from here: the earliest due time's."""
+        sensors = self.sensors
+        due = min(s.next_time for s in sensors)
+        try:
+            counts = joint.read_counts([s.driver for s in sensors])
+        except DeviceError:
+            return []
+        times = joint.count_times(self.clock.now(), len(sensors))
+        self.joint_polls += 1
+        todo: list[tuple[SensorReader, int]] = []
+        for s, count, t_count in zip(sensors, counts, times, strict=True):
+            s.next_time = due
+            try:
+                frames = s.counted(count, t_count)
+            except DeviceError as exc:
+                s._failed(str(exc))
+                continue
+            if frames is None:  # misaligned, and resynced
+                s._ok()
+            else:
+                if s._stale():  # nothing for 5 polls, and still nothing: asleep? (its own poll checks)
+                    s._check_running = True
+                todo.append((s, frames))
+        if not todo:
+            return list(sensors)
+        try:
+            flags = joint.read_fifos(
+                [s.driver for s, _ in todo], [n for _, n in todo], [s._pending for s, _ in todo]
+            )
+        except DeviceError as exc:
+            for s, _ in todo:  # what it popped is gone, maybe whole frames: realign each
+                s._need_resync = True
+                s._failed(str(exc))
+            return list(sensors)
+        for (s, _), overflow in zip(todo, flags, strict=True):
+            try:
+                s.read_done(overflow, s._t_count)
+            except DeviceError as exc:
+                s._failed(str(exc))
+            else:
+                s._ok()
+        return list(sensors)
 
     def _wait(self) -> None:
         due = min(s.next_time for s in self.sensors)
