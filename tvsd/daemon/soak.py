@@ -286,6 +286,8 @@ def _stall_figures(before: dict[str, Any], after: dict[str, Any], t0: float, t1:
         out[f"soak_{name}_stalls"] = a.get("stalls", 0) - b.get("stalls", 0) if a else None
         out[f"soak_{name}_late_max_ms"] = a.get("late_max_ms")
         out[f"soak_{name}_gc_max_ms"] = a.get("gc_max_ms")
+        if a.get("plant_lag_max_ms") is not None:  # the SIL plant's thread behind real time (since start)
+            out[f"soak_{name}_plant_lag_max_ms"] = a["plant_lag_max_ms"]
         out[f"soak_{name}_stall_worst"] = max(window, key=lambda s: s["ms"], default=None)
         if "bus" in a:
             out[f"soak_{name}_bus"] = a["bus"]

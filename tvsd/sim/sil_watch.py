@@ -78,6 +78,10 @@ class StallWatch:
         self.recent: deque[dict[str, Any]] = deque(maxlen=STALLS_KEPT)
         self.late_max_ms = 0.0
         self.ticks = 0
+        # the plant's thread (SCHED_FIFO 30, below the bus thread and this one) behind its
+        # pacing line, looked at every tick: late MCU frames with this thread on time
+        self.plant_lag_max_ms = 0.0
+        self.plant_lag_max_t = 0.0
         self.gc_max_ms = 0.0
         self.gc_pauses: deque[tuple[float, float, int]] = deque(maxlen=GC_KEPT)  # (start, end, gen)
         self._gc_t0 = 0.0
@@ -127,6 +131,9 @@ class StallWatch:
             if late > self.stall_s:
                 self._record(prev_now, now, prev_stat, stat)
             prev_stat, prev_now = stat, now
+            lag = self._plant_lag_ms(now)
+            if lag is not None and lag > self.plant_lag_max_ms:
+                self.plant_lag_max_ms, self.plant_lag_max_t = lag, now
             due = max(due + self.tick_s, now)  # after a stall: from now, no burst of ticks
             if target is not None and (now >= next_export or self._stop.is_set()):
                 self._export(target)
@@ -158,12 +165,7 @@ class StallWatch:
         gc_in = [
             {"ms": round(1e3 * (e - s), 2), "gen": g} for s, e, g in list(self.gc_pauses) if e > t0 and s < t1
         ]
-        plant = self.plant
-        lag_ms = None
-        if plant is not None:
-            with contextlib.suppress(Exception):
-                line = plant.host_to_sim([t1])[0]
-                lag_ms = round(1e3 * (float(line) - plant.t) / plant.speed, 2)
+        lag_ms = self._plant_lag_ms(t1)
         entry = {
             "t": round(t1, 3),
             "ms": round(1e3 * (t1 - t0), 2),
@@ -178,6 +180,14 @@ class StallWatch:
             if self.worst is None or entry["ms"] > self.worst["ms"]:
                 self.worst = entry
 
+    def _plant_lag_ms(self, now: float) -> float | None:
+        """How far (wall ms) the plant's time is behind its pacing line at `now`."""
+        plant = self.plant
+        if plant is None or plant.pacing.feeds == 0:
+            return None
+        p = plant.pacing
+        return round(1e3 * ((p.sim0 + (now - p.wall0) * plant.speed) - plant.t) / plant.speed, 2)
+
     def report(self) -> dict[str, Any]:
         with self._lock:
             return {
@@ -187,6 +197,8 @@ class StallWatch:
                 "stalls": self.stalls,
                 "late_max_ms": round(self.late_max_ms, 2),
                 "gc_max_ms": round(self.gc_max_ms, 2),
+                "plant_lag_max_ms": self.plant_lag_max_ms,
+                "plant_lag_max_t": round(self.plant_lag_max_t, 3),
                 "realtime": self.realtime,
                 "worst": self.worst,
                 "recent": list(self.recent),
