@@ -179,6 +179,19 @@ def _imu_figures(before: dict[str, Any], after: dict[str, Any]) -> dict[str, Any
     ).get("reader_wake_late", 0)
     if "bus" in after.get("imu", {}):
         out["soak_imu_bus"] = after["imu"]["bus"]
+    # per sensor: counts during the load, the longest gap and poll (count read to status read)
+    # since start
+    sb = before.get("imu", {}).get("sensors", {})
+    out["soak_imu_per_sensor"] = {
+        name: {
+            **{
+                k: int(s.get(k) or 0) - int(sb.get(name, {}).get(k) or 0)
+                for k in ("overflows", "late_polls", "lost")
+            },
+            **{k: s.get(k) for k in ("poll_gap_max_ms", "poll_max_ms", "fifo_peak_frames")},
+        }
+        for name, s in sensors.items()
+    }
     return out
 
 
