@@ -362,6 +362,7 @@ class ImuService:
                 {
                     "reader_wake_late_max_ms": round(1e3 * self.reader.wake_late_max_s, 2),
                     "reader_wake_late": self.reader.wake_late,
+                    "reader_joint_polls": self.reader.joint_polls,  # both sensors in two transfers
                 }
                 if self.reader is not None
                 else {}

@@ -1,20 +1,20 @@
 """IMU reader: drains both MPU6050 FIFOs in one thread, survives the bus, counts every loss.
 
-Policy lives here, mechanism in mpu6050.py. Per sensor, each poll reads FIFO_COUNT, the whole
-frames present, then INT_STATUS (in the frames' last combined transfer: two round trips a
-poll). Frames are held as *pending* until that status read says no
-overflow happened while they sat in the FIFO (an overflow drops the oldest bytes and misaligns what
-follows); then they are delivered. A byte count that is not a whole number of frames also means
-misalignment (a failed transfer that popped part of a frame); so does any failed FIFO transfer
-but a NACK (it may have popped whole frames, which no count reveals). All end in a *resync*: FIFO
-reset, and a new epoch whose first sample number is estimated from the fitted sensor clock, so the
-gap is counted as lost samples. The sensor has no sample counter: without resyncs the count is
-exact; with them it is as good as the clock fit (SensorReader.lost refines it as the fit matures;
-the property tests bound it by the rate error times the span, +-1). Samples after the newest
-delivered one count as lost as soon as they can no longer arrive (SensorReader.overdue): the FIFO
-overflowed (more than its 85 frames since) or was reset; a sensor gone for good thus counts its
-samples by its rate and the time elapsed, and when it comes back the new epoch's gap takes them
-over (the same samples, never twice).
+Policy lives here, mechanism in mpu6050.py. Per sensor, each poll reads FIFO_COUNT, the whole frames
+present, then INT_STATUS (in the frames' last combined transfer: two round trips a poll; both
+sensors' plain polls share their two, tvsd.hw.imu_joint). Frames are held as *pending* until that
+status read says no overflow happened while they sat in the FIFO (an overflow drops the oldest bytes
+and misaligns what follows); then they are delivered. A byte count that is not a whole number of
+frames also means misalignment (a failed transfer that popped part of a frame); so does any failed
+FIFO transfer but a NACK (it may have popped whole frames, which no count reveals). All end in a
+*resync*: FIFO reset, and a new epoch whose first sample number is estimated from the fitted sensor
+clock, so the gap is counted as lost samples. The sensor has no sample counter: without resyncs the
+count is exact; with them it is as good as the clock fit (SensorReader.lost refines it as the fit
+matures; the property tests bound it by the rate error times the span, +-1). Samples after the
+newest delivered one count as lost as soon as they can no longer arrive (SensorReader.overdue): the
+FIFO overflowed (more than its 85 frames since) or was reset; a sensor gone for good thus counts its
+samples by its rate and the time elapsed, and when it comes back the new epoch's gap takes them over
+(the same samples, never twice).
 
 Sample numbers and times: within an epoch the k-th frame is sample k_start + k. The sensor clock
 (a few % off nominal) is fitted against host read times: the rate by least squares with outlier
