@@ -363,6 +363,8 @@ class ImuService:
                     "reader_wake_late_max_ms": round(1e3 * self.reader.wake_late_max_s, 2),
                     "reader_wake_late": self.reader.wake_late,
                     "reader_joint_polls": self.reader.joint_polls,  # both sensors in two transfers
+                    # the reader's own wait between its two transfers of a poll (its GIL waits)
+                    "reader_joint_gap_max_ms": round(1e3 * self.reader.joint_gap_max_s, 2),
                 }
                 if self.reader is not None
                 else {}

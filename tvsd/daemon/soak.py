@@ -174,6 +174,7 @@ def _imu_figures(before: dict[str, Any], after: dict[str, Any]) -> dict[str, Any
         out[f"soak_imu_{key}"] = max((s.get(key) or 0 for s in sensors.values()), default=0)
     # the reader thread's wake-ups after its sleeps (since start): late by the CPU or the GIL
     out["soak_imu_reader_wake_late_max_ms"] = after.get("imu", {}).get("reader_wake_late_max_ms")
+    out["soak_imu_reader_joint_gap_max_ms"] = after.get("imu", {}).get("reader_joint_gap_max_ms")
     out["soak_imu_reader_wake_late"] = after.get("imu", {}).get("reader_wake_late", 0) - before.get(
         "imu", {}
     ).get("reader_wake_late", 0)

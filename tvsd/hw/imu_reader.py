@@ -407,6 +407,7 @@ class ImuReader:
         self._thread: threading.Thread | None = None
         self.joint = True  # poll all sensors together when they allow it (tvsd.hw.imu_joint)
         self.joint_polls = 0
+        self.joint_gap_max_s = 0.0  # count transfer's return to the FIFO transfer's start, longest
         # the thread's wake-ups after its sleeps: how late (the CPU, the GIL: not the bus)
         self.wake_late_max_s = 0.0
         self.wake_late = 0  # over WAKE_LATE_S
@@ -481,6 +482,8 @@ class ImuReader:
                 todo.append((s, frames))
         if not todo:
             return list(sensors)
+        # the reader's own time between its two transfers (its Python and the GIL's waits)
+        self.joint_gap_max_s = max(self.joint_gap_max_s, self.clock.now() - times[-1])
         try:
             flags = joint.read_fifos(
                 [s.driver for s, _ in todo], [n for _, n in todo], [s._pending for s, _ in todo]
