@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import errno
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from smbus2 import i2c_msg
@@ -34,6 +35,9 @@ from smbus2 import i2c_msg
 from tvsd.errors import DeviceError
 from tvsd.hw import mpu6050 as reg
 from tvsd.hw.mpu6050 import Mpu6050
+
+if TYPE_CHECKING:
+    from tvsd.hw.imu_reader import ImuReader, SensorReader
 
 MAX_BURST = reg.FIFO_SIZE // reg.FRAME_BYTES  # 85 frames: 1020 bytes, under i2c-dev's 8192 a message
 # A FIFO_COUNT read on the wire: start, address, register, restart, address, 2 bytes (9 bits
@@ -106,3 +110,62 @@ def read_fifos(
         if r is not None:
             o.append(np.frombuffer(bytes(r), dtype=">i2").reshape(-1, 6).astype(np.int16))
     return [bool(bytes(s)[0] & reg.INT_FIFO_OFLOW) for s in status]
+
+
+def possible(reader: ImuReader) -> bool:
+    """Whether the reader's next step is a joint poll: the sensors share a bus with i2c_rdwr, one
+    is due, and every one's next poll is plain (SensorReader.plain)."""
+    if len(reader.sensors) < 2 or not reader.joint:
+        return False
+    bus = reader.sensors[0].driver.bus
+    if not hasattr(bus, "i2c_rdwr") or any(s.driver.bus is not bus for s in reader.sensors):
+        return False
+    now = reader.clock.now()
+    return any(s.next_time <= now for s in reader.sensors) and all(s.plain() for s in reader.sensors)
+
+
+def poll(reader: ImuReader) -> list[SensorReader]:
+    """One poll of all the reader's sensors; the sensors it polled (none: the count
+    read failed, nothing moved, each polls alone now and finds whose fault it is). One
+    schedule for all from here: the earliest due time's."""
+    sensors = reader.sensors
+    due = min(s.next_time for s in sensors)
+    try:
+        counts = read_counts([s.driver for s in sensors])
+    except DeviceError:
+        return []
+    times = count_times(reader.clock.now(), len(sensors))
+    reader.joint_polls += 1
+    todo: list[tuple[SensorReader, int]] = []
+    for s, count, t_count in zip(sensors, counts, times, strict=True):
+        s.next_time = due
+        try:
+            frames = s.counted(count, t_count)
+        except DeviceError as exc:
+            s._failed(str(exc))
+            continue
+        if frames is None:  # misaligned, and resynced
+            s._ok()
+        else:
+            if s._stale():  # nothing for 5 polls, and still nothing: asleep? (its own poll checks)
+                s._check_running = True
+            todo.append((s, frames))
+    if not todo:
+        return list(sensors)
+    # the reader's own time between its two transfers (its Python and the GIL's waits)
+    reader.joint_gap_max_s = max(reader.joint_gap_max_s, reader.clock.now() - times[-1])
+    try:
+        flags = read_fifos([s.driver for s, _ in todo], [n for _, n in todo], [s._pending for s, _ in todo])
+    except DeviceError as exc:
+        for s, _ in todo:  # what it popped is gone, maybe whole frames: realign each
+            s._need_resync = True
+            s._failed(str(exc))
+        return list(sensors)
+    for (s, _), overflow in zip(todo, flags, strict=True):
+        try:
+            s.read_done(overflow, s._t_count)
+        except DeviceError as exc:
+            s._failed(str(exc))
+        else:
+            s._ok()
+    return list(sensors)

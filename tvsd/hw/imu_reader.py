@@ -417,10 +417,10 @@ class ImuReader:
         (SensorReader.plain) go together (tvsd.hw.imu_joint), else each sensor polls alone."""
         out: list[ImuBatch] = []
         polled: list[SensorReader] = []
-        if self._joint_possible():
+        if joint.possible(self):
             try:
                 with self._lock:
-                    polled = self._joint()
+                    polled = joint.poll(self)
             except Exception as exc:  # a bug must not kill the reader: record it, back off
                 log.exception("IMU reader error (joint poll)")
                 for sensor in self.sensors:
@@ -444,63 +444,6 @@ class ImuReader:
             if self.on_poll is not None:
                 self.on_poll(sensor)
         return out
-
-    def _joint_possible(self) -> bool:
-        if len(self.sensors) < 2 or not self.joint:
-            return False
-        bus = self.sensors[0].driver.bus
-        if not hasattr(bus, "i2c_rdwr") or any(s.driver.bus is not bus for s in self.sensors):
-            return False
-        now = self.clock.now()
-        return any(s.next_time <= now for s in self.sensors) and all(s.plain() for s in self.sensors)
-
-    def _joint(self) -> list[SensorReader]:
-        """One poll of all sensors (tvsd.hw.imu_joint); the sensors it polled (none: the count
-        read failed, nothing moved, each polls alone now and finds whose fault it is). One
-        schedule for all from here: the earliest due time's."""
-        sensors = self.sensors
-        due = min(s.next_time for s in sensors)
-        try:
-            counts = joint.read_counts([s.driver for s in sensors])
-        except DeviceError:
-            return []
-        times = joint.count_times(self.clock.now(), len(sensors))
-        self.joint_polls += 1
-        todo: list[tuple[SensorReader, int]] = []
-        for s, count, t_count in zip(sensors, counts, times, strict=True):
-            s.next_time = due
-            try:
-                frames = s.counted(count, t_count)
-            except DeviceError as exc:
-                s._failed(str(exc))
-                continue
-            if frames is None:  # misaligned, and resynced
-                s._ok()
-            else:
-                if s._stale():  # nothing for 5 polls, and still nothing: asleep? (its own poll checks)
-                    s._check_running = True
-                todo.append((s, frames))
-        if not todo:
-            return list(sensors)
-        # the reader's own time between its two transfers (its Python and the GIL's waits)
-        self.joint_gap_max_s = max(self.joint_gap_max_s, self.clock.now() - times[-1])
-        try:
-            flags = joint.read_fifos(
-                [s.driver for s, _ in todo], [n for _, n in todo], [s._pending for s, _ in todo]
-            )
-        except DeviceError as exc:
-            for s, _ in todo:  # what it popped is gone, maybe whole frames: realign each
-                s._need_resync = True
-                s._failed(str(exc))
-            return list(sensors)
-        for (s, _), overflow in zip(todo, flags, strict=True):
-            try:
-                s.read_done(overflow, s._t_count)
-            except DeviceError as exc:
-                s._failed(str(exc))
-            else:
-                s._ok()
-        return list(sensors)
 
     def _wait(self) -> None:
         due = min(s.next_time for s in self.sensors)
