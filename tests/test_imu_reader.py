@@ -8,6 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from tvsd.hw import mpu6050 as reg
 from tvsd.hw.imu_clock import ManualClock, MonotonicClock
 from tvsd.hw.imu_reader import ImuBatch, ImuReader, SensorReader, asyncio_sink
 from tvsd.hw.mpu6050 import ImuSettings, Mpu6050
@@ -84,9 +85,15 @@ def test_timestamps_match_the_sensor_sample_times():
 
 
 def test_nack_bursts_are_retried_and_lose_nothing():
-    # ENXIO means the address was not acknowledged: nothing left the FIFO. 30 ms < 85 ms FIFO.
-    x = rig([Fault("nack", 1.0, 1.03)])
-    batches = x.reader.run_for(2.5)
+    # ENXIO on a transfer that pops nothing (a lone count read, or the first message of a
+    # sensor's own poll) means nothing left the FIFO. 30 ms < 85 ms FIFO. The window starts
+    # at a count read here: inside the two sensors' joint FIFO read (tvsd.hw.imu_joint) a
+    # NACK cannot say which message failed, and the next test's realignment applies.
+    x = rig()
+    x.reader.run_for(1.0)
+    start = x.readers["pl"].next_time - 1e-4  # just before the next poll's count read
+    x.bus.faults = [Fault("nack", start, start + 0.03)]
+    batches = x.reader.run_for(1.5)
     for name in ("pl", "sa"):
         n_in, out, lost, resyncs = accounting(batches, x.readers, name)
         assert (n_in, lost, resyncs) == (out, 0, 0)
@@ -128,7 +135,12 @@ def test_disconnect_degrades_one_sensor_only_and_backs_off():
     assert sa.state == "ok" and "no ACK" in sa.last_error
     # exponential back-off 5 ms .. 0.5 s: ~8 attempts to reach the cap, then ~2 per second
     assert 5 <= sa.errors <= 15
-    assert x.readers["pl"].errors == 0 and x.readers["pl"].lost == 0
+    # The disconnect began inside the sensors' joint FIFO read (tvsd.hw.imu_joint: one I2C_RDWR
+    # for both, 6 ms of a 20 ms period): the kernel hands back nothing of a failed transfer, so
+    # the frames it had popped from pl are gone, counted as lost, once: from then on sa polls
+    # alone. At most one poll's frames (20 at 1 kHz, the FIFO's 85 at worst) and one error.
+    pl = x.readers["pl"]
+    assert pl.errors <= 1 and pl.resyncs <= 1 and pl.lost <= reg.FIFO_SIZE // reg.FRAME_BYTES
 
 
 def test_power_cycle_is_noticed_and_the_sensor_configured_again():
@@ -154,7 +166,7 @@ def test_wrong_chip_never_comes_up_and_never_kills_the_reader():
 def test_an_unexpected_exception_is_recorded_and_the_reader_goes_on():
     x = rig()
     x.reader.run_for(0.5)
-    real = x.bus.read_i2c_block_data
+    real = x.bus.i2c_rdwr  # the plain polls' transfers (tvsd.hw.imu_joint)
     calls = {"n": 0}
 
     def flaky(*args, **kwargs):
@@ -163,7 +175,7 @@ def test_an_unexpected_exception_is_recorded_and_the_reader_goes_on():
             raise RuntimeError("bug in a x.bus layer")
         return real(*args, **kwargs)
 
-    x.bus.read_i2c_block_data = flaky  # type: ignore[method-assign]
+    x.bus.i2c_rdwr = flaky  # type: ignore[method-assign]
     x.reader.run_for(0.5)
     errors = [r.last_error for r in x.readers.values()]
     assert any("internal error: RuntimeError" in e for e in errors)

@@ -64,6 +64,7 @@ STILL_RPS = 0.05  # SIL: the twins feel the plant's vibration only while the sha
 STATES = ("off", "ok", "starting", "degraded", "lost")  # by severity: the overall is the worst
 LOST_POLLS = 5
 INJECT_KINDS = ("loss", "restore")
+ENV_STALLS = "TVSD_DAEMON_STALLS"  # a file: the daemon's stall watch (tvsd.sim.sil_watch) writes there
 SNAPSHOT_S = 0.2  # how often the reader thread refreshes a sensor's fitted rate and loss count
 
 OnBatch = Callable[[ImuBatch], None]
@@ -129,6 +130,7 @@ class ImuService:
         self._calibration: dict[str, object] = {"file": str(settings.calibration_file), "applied": False}
         self._injected: list[Any] = []
         self._handoff: LoopHandoff[ImuBatch] = LoopHandoff(self._deliver, "IMU batch")  # reader → loop
+        self._stalls: Any = None
 
     @classmethod
     def for_daemon(cls, cfg: Config, backend: str, plant: Any = None) -> ImuService:
@@ -164,6 +166,11 @@ class ImuService:
         self._snap_t.clear()
         self._handoff.clear()
         self.reader.start()
+        if os.environ.get(ENV_STALLS, "").strip():  # a soak's measurement: the daemon's own stalls
+            from tvsd.sim.sil_watch import StallWatch
+
+            self._stalls = StallWatch(export_to=os.environ[ENV_STALLS].strip())
+            self._stalls.start(_fifo_here(), READER_PRIORITY + 1)
         self._set_state("starting", "bringing the sensors up")
         self._watch = asyncio.create_task(self._watchdog(), name="imu-watchdog")
 
@@ -218,6 +225,9 @@ class ImuService:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._watch
             self._watch = None
+        if self._stalls is not None:
+            self._stalls.stop()
+            self._stalls = None
         reader, bus = self.reader, self.bus
         self.reader, self.bus = None, None
         if reader is not None:
@@ -348,6 +358,17 @@ class ImuService:
             "calibration": dict(self._calibration),
             "sensors": sensors,
             "reader_fifo": self.reader.realtime if self.reader is not None else "not running",
+            **(
+                {
+                    "reader_wake_late_max_ms": round(1e3 * self.reader.wake_late_max_s, 2),
+                    "reader_wake_late": self.reader.wake_late,
+                    "reader_joint_polls": self.reader.joint_polls,  # both sensors in two transfers
+                    # the reader's own wait between its two transfers of a poll (its GIL waits)
+                    "reader_joint_gap_max_ms": round(1e3 * self.reader.joint_gap_max_s, 2),
+                }
+                if self.reader is not None
+                else {}
+            ),
             **({"bus": stats()} if (stats := getattr(self.bus, "stats", None)) is not None else {}),
         }
 

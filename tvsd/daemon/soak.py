@@ -33,6 +33,7 @@ daemon spins up (before the load) are cleared, the speed asked again, and report
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import signal
 import subprocess
@@ -46,6 +47,7 @@ from typing import Any
 
 from tvsd.control.latency import BINS_PER_DECADE
 from tvsd.daemon.faults import FaultKind
+from tvsd.daemon.imu_service import ENV_STALLS as ENV_DAEMON_STALLS
 from tvsd.daemon.soak_load import (
     BATCH_CALLS,
     Load,
@@ -59,6 +61,7 @@ from tvsd.daemon.soak_load import (
 from tvsd.daemon.state import DaemonState
 from tvsd.errors import DeviceError
 from tvsd.rpc.client import RemoteDeviceError, RpcClient
+from tvsd.sim.sil_watch import ENV_STALLS as ENV_SIL_STALLS
 
 RPS = 25.0
 CLIENTS = 50
@@ -75,12 +78,29 @@ class _Daemon:
 
     def __init__(self, tmp: Path, command: list[str]) -> None:
         self.sock, self.log_path = tmp / "tvsd.sock", tmp / "tvsd.log"
+        # the stall watches' reports (tvsd.sim.sil_watch): the SIL process's, the daemon's
+        self.stalls = {"sil": tmp / "sil-stalls.json", "daemon": tmp / "daemon-stalls.json"}
+        env = {
+            **os.environ,
+            ENV_SIL_STALLS: str(self.stalls["sil"]),
+            ENV_DAEMON_STALLS: str(self.stalls["daemon"]),
+        }
         log = self.log_path.open("wb")
         self.proc = subprocess.Popen(
             [*command, "--sil", "--realtime", "--socket", str(self.sock), "--data-dir", str(tmp / "data")],
-            stdout=log, stderr=log, preexec_fn=die_with_parent(signal.SIGTERM),
+            stdout=log, stderr=log, preexec_fn=die_with_parent(signal.SIGTERM), env=env,
         )  # fmt: skip
         log.close()
+
+    def stall_reports(self) -> dict[str, Any]:
+        """The stall watches' latest reports (an empty one if none was written)."""
+        out: dict[str, Any] = {}
+        for name, path in self.stalls.items():
+            try:
+                out[name] = json.loads(path.read_text())
+            except (OSError, ValueError):
+                out[name] = {}
+        return out
 
     def fail(self, what: str) -> DeviceError:
         tail = self.log_path.read_text(errors="replace").strip().splitlines()[-5:]
@@ -152,8 +172,27 @@ def _imu_figures(before: dict[str, Any], after: dict[str, Any]) -> dict[str, Any
     sensors = after.get("imu", {}).get("sensors", {})
     for key in ("poll_gap_max_ms", "fifo_peak_frames"):
         out[f"soak_imu_{key}"] = max((s.get(key) or 0 for s in sensors.values()), default=0)
+    # the reader thread's wake-ups after its sleeps (since start): late by the CPU or the GIL
+    out["soak_imu_reader_wake_late_max_ms"] = after.get("imu", {}).get("reader_wake_late_max_ms")
+    out["soak_imu_reader_joint_gap_max_ms"] = after.get("imu", {}).get("reader_joint_gap_max_ms")
+    out["soak_imu_reader_wake_late"] = after.get("imu", {}).get("reader_wake_late", 0) - before.get(
+        "imu", {}
+    ).get("reader_wake_late", 0)
     if "bus" in after.get("imu", {}):
         out["soak_imu_bus"] = after["imu"]["bus"]
+    # per sensor: counts during the load, the longest gap and poll (count read to status read)
+    # since start
+    sb = before.get("imu", {}).get("sensors", {})
+    out["soak_imu_per_sensor"] = {
+        name: {
+            **{
+                k: int(s.get(k) or 0) - int(sb.get(name, {}).get(k) or 0)
+                for k in ("overflows", "late_polls", "lost")
+            },
+            **{k: s.get(k) for k in ("poll_gap_max_ms", "poll_max_ms", "fifo_peak_frames")},
+        }
+        for name, s in sensors.items()
+    }
     return out
 
 
@@ -187,6 +226,7 @@ def soak(
             tvsd.wait_up(ctl)
             spin_up_faults = _spin_up(tvsd, ctl)
             before: Any = ctl.call("status")
+            stalls_before = tvsd.stall_reports()
             if before["loop"]["rate_hz"]:
                 period_s = 1.0 / round(before["loop"]["rate_hz"])
             recording = Path(str(ctl.call("record_start")["recording"]))  # type: ignore[index]
@@ -220,6 +260,9 @@ def soak(
                     shown = now
                 time.sleep(0.05)
             after: Any = ctl.call("status")  # the load's end, before anything is stopped
+            t_end = time.monotonic()
+            time.sleep(1.2)  # the reports are rewritten every second
+            stalls_after = tvsd.stall_reports()
             load.stop.set()
             for h in hogs:
                 h.kill()
@@ -241,7 +284,28 @@ def soak(
     res = _figures(
         seconds, clients, every, before, after, floor["floor"], load, exports, attempted, len(hogs)
     )
-    return {**res, "soak_spin_up_faults": spin_up_faults}
+    stalls = _stall_figures(stalls_before, stalls_after, t0, t_end)
+    return {**res, **stalls, "soak_spin_up_faults": spin_up_faults}
+
+
+def _stall_figures(before: dict[str, Any], after: dict[str, Any], t0: float, t1: float) -> dict[str, Any]:
+    """Per process (the SIL devices', the daemon's): stalls of its watch thread during the load
+    (a wake-up later than its stall_over_ms: the process stood still), the longest wake-up delay,
+    and the worst stall seen in the load's window with its per-thread breakdown; the SIL bus
+    thread's service times."""
+    out: dict[str, Any] = {}
+    for name in ("sil", "daemon"):
+        b, a = before.get(name) or {}, after.get(name) or {}
+        window = [s for s in a.get("recent", []) if t0 <= s.get("t", 0.0) <= t1 + 1.0]
+        out[f"soak_{name}_stalls"] = a.get("stalls", 0) - b.get("stalls", 0) if a else None
+        out[f"soak_{name}_late_max_ms"] = a.get("late_max_ms")
+        out[f"soak_{name}_gc_max_ms"] = a.get("gc_max_ms")
+        if a.get("plant_lag_max_ms") is not None:  # the SIL plant's thread behind real time (since start)
+            out[f"soak_{name}_plant_lag_max_ms"] = a["plant_lag_max_ms"]
+        out[f"soak_{name}_stall_worst"] = max(window, key=lambda s: s["ms"], default=None)
+        if "bus" in a:
+            out[f"soak_{name}_bus"] = a["bus"]
+    return out
 
 
 def _holds(lb: dict[str, Any], la: dict[str, Any], listed: int) -> dict[str, Any]:

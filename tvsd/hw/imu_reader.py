@@ -1,20 +1,20 @@
 """IMU reader: drains both MPU6050 FIFOs in one thread, survives the bus, counts every loss.
 
-Policy lives here, mechanism in mpu6050.py. Per sensor, each poll reads FIFO_COUNT, the whole
-frames present, then INT_STATUS (in the frames' last combined transfer: two round trips a
-poll). Frames are held as *pending* until that status read says no
-overflow happened while they sat in the FIFO (an overflow drops the oldest bytes and misaligns what
-follows); then they are delivered. A byte count that is not a whole number of frames also means
-misalignment (a failed transfer that popped part of a frame); so does any failed FIFO transfer
-but a NACK (it may have popped whole frames, which no count reveals). All end in a *resync*: FIFO
-reset, and a new epoch whose first sample number is estimated from the fitted sensor clock, so the
-gap is counted as lost samples. The sensor has no sample counter: without resyncs the count is
-exact; with them it is as good as the clock fit (SensorReader.lost refines it as the fit matures;
-the property tests bound it by the rate error times the span, +-1). Samples after the newest
-delivered one count as lost as soon as they can no longer arrive (SensorReader.overdue): the FIFO
-overflowed (more than its 85 frames since) or was reset; a sensor gone for good thus counts its
-samples by its rate and the time elapsed, and when it comes back the new epoch's gap takes them
-over (the same samples, never twice).
+Policy lives here, mechanism in mpu6050.py. Per sensor, each poll reads FIFO_COUNT, the whole frames
+present, then INT_STATUS (in the frames' last combined transfer: two round trips a poll; both
+sensors' plain polls share their two, tvsd.hw.imu_joint). Frames are held as *pending* until that
+status read says no overflow happened while they sat in the FIFO (an overflow drops the oldest bytes
+and misaligns what follows); then they are delivered. A byte count that is not a whole number of
+frames also means misalignment (a failed transfer that popped part of a frame); so does any failed
+FIFO transfer but a NACK (it may have popped whole frames, which no count reveals). All end in a
+*resync*: FIFO reset, and a new epoch whose first sample number is estimated from the fitted sensor
+clock, so the gap is counted as lost samples. The sensor has no sample counter: without resyncs the
+count is exact; with them it is as good as the clock fit (SensorReader.lost refines it as the fit
+matures; the property tests bound it by the rate error times the span, +-1). Samples after the
+newest delivered one count as lost as soon as they can no longer arrive (SensorReader.overdue): the
+FIFO overflowed (more than its 85 frames since) or was reset; a sensor gone for good thus counts its
+samples by its rate and the time elapsed, and when it comes back the new epoch's gap takes them over
+(the same samples, never twice).
 
 Sample numbers and times: within an epoch the k-th frame is sample k_start + k. The sensor clock
 (a few % off nominal) is fitted against host read times: the rate by least squares with outlier
@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tvsd.errors import DeviceError
+from tvsd.hw import imu_joint as joint
 from tvsd.hw import mpu6050 as reg
 from tvsd.hw.imu_clock import Clock, ClockFit, MonotonicClock
 from tvsd.hw.mpu6050 import ImuSettings, Mpu6050
@@ -53,6 +54,7 @@ FIFO_FRAMES = reg.FIFO_SIZE // reg.FRAME_BYTES  # 85: more samples than this unr
 # the soak), below the MCU link's I/O thread (60) and the control thread (80). The FIFO holds
 # 83 ms at 1 kHz: the reader may wait for the GIL, never for the loop's turn on the CPU.
 READER_PRIORITY = 50
+WAKE_LATE_S = 0.02  # a wake-up this late is counted (ImuReader.wake_late): a poll interval
 
 
 @dataclass(frozen=True)
@@ -137,12 +139,31 @@ class SensorReader:
         except DeviceError as exc:
             self._failed(str(exc))
         else:
-            self._failures = 0
-            if self.up:
-                self.state = "ok"
-            self.next_time = self._next_due()
+            self._ok()
+        return self.take()
+
+    def take(self) -> list[ImuBatch]:
+        """The batches confirmed since the last call."""
         ready, self._ready = self._ready, []
         return ready
+
+    def _ok(self) -> None:
+        """After a good poll: healthy, and the next one scheduled."""
+        self._failures = 0
+        if self.up:
+            self.state = "ok"
+        self.next_time = self._next_due()
+
+    def plain(self) -> bool:
+        """Whether the next poll is a plain one (FIFO_COUNT, the frames, INT_STATUS) that may
+        share its transfers with the other sensor's (tvsd.hw.imu_joint): running, healthy,
+        nothing to recover or check first. A sensor without data for a while is checked (is it
+        still running?) when its count read finds nothing (tvsd.hw.imu_joint): a FIFO that fills
+        says so, and a check on every poll of a reader behind its FIFO slowed it further."""
+        return self.up and not self._failures and not self._need_resync and not self._check_running
+
+    def _stale(self) -> bool:
+        return self.clock.now() - self._last_data > 5 * self.settings.poll_interval_s
 
     def _next_due(self) -> float:
         """After a good poll: a bring-up stage's wait from now; else the next poll at a fixed
@@ -243,23 +264,13 @@ class SensorReader:
         self.epoch += 1
         self._last_data = self.clock.now()
 
-    def _resync(self) -> None:
-        self._pending.clear()
-        self._need_resync = True  # stays set if the reset fails, so the next poll retries it
-        self.driver.reset_fifo()
-        self._cut_t = self.clock.now()
-        self._need_resync = False
-        self.resyncs += 1
-        self._new_epoch()
-
     def _poll(self) -> None:
         if not self.up and not self._bring_up():
             return
         if self._need_resync:
-            self._recover(overflow=self.driver.read_overflow())
+            self._recover()
             return
-        stale = self.clock.now() - self._last_data > 5 * self.settings.poll_interval_s
-        if self._check_running or stale:  # a sensor reset behind our back is asleep, FIFO off
+        if self._check_running or self._stale():  # a sensor reset behind our back is asleep, FIFO off
             if not self.driver.is_running():
                 log.warning("%s IMU was reset; configuring it again", self.name)
                 self.restarts += 1
@@ -269,18 +280,9 @@ class SensorReader:
             self._check_running = False
         count = self.driver.fifo_count()
         t_count = self.clock.now()  # after the read: see ClockFit.t0
-        frames = count // reg.FRAME_BYTES
-        self._timing(t_count, frames)
-        if count % reg.FRAME_BYTES:  # part of a frame went missing: the FIFO is misaligned
-            self._recover(overflow=self.driver.read_overflow())
+        frames = self.counted(count, t_count)
+        if frames is None:
             return
-        if self._epoch_open:
-            self._open_epoch(t_count, frames)
-        held = sum(len(p) for p in self._pending)
-        if frames or held:
-            self.fit.add(t_count, self.k_next + held + frames - 1, self.epoch)
-        if frames:
-            self._last_data = t_count
         # frames read before a failed transfer stay pending: every transfer is whole frames
         try:
             overflow = self.driver.read_frames_then_overflow(frames, self._pending)
@@ -290,6 +292,28 @@ class SensorReader:
             if exc.errno not in (errno.ENXIO, errno.EREMOTEIO):
                 self._need_resync = True
             raise
+        self.read_done(overflow, t_count)
+
+    def counted(self, count: int, t_count: float) -> int | None:
+        """A FIFO_COUNT read (`count` bytes, the read done at `t_count`): the whole frames to read
+        now, or None if the FIFO was misaligned (then recovered: bus I/O, may raise)."""
+        frames = count // reg.FRAME_BYTES
+        self._timing(t_count, frames)
+        if count % reg.FRAME_BYTES:  # part of a frame went missing: the FIFO is misaligned
+            self._recover()
+            return None
+        if self._epoch_open:
+            self._open_epoch(t_count, frames)
+        held = sum(len(p) for p in self._pending)
+        if frames or held:
+            self.fit.add(t_count, self.k_next + held + frames - 1, self.epoch)
+        if frames:
+            self._last_data = t_count
+        return frames
+
+    def read_done(self, overflow: bool, t_count: float) -> None:
+        """The frames counted are pending, INT_STATUS read after them: deliver, or recover from
+        an overflow (which misaligned what was read: all of it is discarded)."""
         if overflow:
             self._recover(overflow=True)
         else:
@@ -316,13 +340,21 @@ class SensorReader:
         self.k_next = first
         self._epoch_open = False
 
-    def _recover(self, overflow: bool) -> None:
-        """Deliver what the status read vouches for, then restart the FIFO aligned."""
-        if overflow:
+    def _recover(self, overflow: bool | None = None) -> None:
+        """Deliver what the status read vouches for, then restart the FIFO aligned (a resync).
+        `overflow` None: INT_STATUS not read yet; it is, in the reset's own transfer, before
+        the reset. If the reset fails, the next poll tries again (pending frames kept)."""
+        self._need_resync = True  # stays set if the reset fails, so the next poll retries it
+        flag = self.driver.reset_fifo(status_first=overflow is None)
+        self._cut_t = self.clock.now()
+        self._need_resync = False
+        if overflow if overflow is not None else flag:
             self.overflows += 1
         else:
             self._deliver()
-        self._resync()
+        self._pending.clear()
+        self.resyncs += 1
+        self._new_epoch()
 
     def _deliver(self) -> None:
         if not self._pending:
@@ -373,18 +405,38 @@ class ImuReader:
         self._stop = threading.Event()
         self._lock = threading.Lock()  # status() may come from another thread than the polls
         self._thread: threading.Thread | None = None
+        self.joint = True  # poll all sensors together when they allow it (tvsd.hw.imu_joint)
+        self.joint_polls = 0
+        self.joint_gap_max_s = 0.0  # count transfer's return to the FIFO transfer's start, longest
+        # the thread's wake-ups after its sleeps: how late (the CPU, the GIL: not the bus)
+        self.wake_late_max_s = 0.0
+        self.wake_late = 0  # over WAKE_LATE_S
 
     def step(self) -> list[ImuBatch]:
-        """Poll every sensor that is due; never raises for device trouble."""
-        out = []
-        for sensor in self.sensors:
+        """Poll every sensor that is due; never raises for device trouble. All plain polls
+        (SensorReader.plain) go together (tvsd.hw.imu_joint), else each sensor polls alone."""
+        out: list[ImuBatch] = []
+        polled: list[SensorReader] = []
+        if joint.possible(self):
             try:
                 with self._lock:
-                    batches = sensor.poll()
+                    polled = joint.poll(self)
             except Exception as exc:  # a bug must not kill the reader: record it, back off
-                log.exception("%s IMU reader error", sensor.name)
-                sensor._failed(f"internal error: {type(exc).__name__}: {exc}")
-                continue
+                log.exception("IMU reader error (joint poll)")
+                for sensor in self.sensors:
+                    sensor._failed(f"internal error: {type(exc).__name__}: {exc}")
+                polled = list(self.sensors)
+        for sensor in self.sensors:
+            if sensor in polled:
+                batches = sensor.take()
+            else:
+                try:
+                    with self._lock:
+                        batches = sensor.poll()
+                except Exception as exc:  # a bug must not kill the reader: record it, back off
+                    log.exception("%s IMU reader error", sensor.name)
+                    sensor._failed(f"internal error: {type(exc).__name__}: {exc}")
+                    continue
             out.extend(batches)
             if self.on_batch is not None:
                 for batch in batches:
@@ -395,7 +447,14 @@ class ImuReader:
 
     def _wait(self) -> None:
         due = min(s.next_time for s in self.sensors)
-        self.clock.sleep(max(due - self.clock.now(), 0.0005))
+        now = self.clock.now()
+        asked = max(due - now, 0.0005)
+        self.clock.sleep(asked)
+        late = self.clock.now() - now - asked
+        if late > self.wake_late_max_s:
+            self.wake_late_max_s = late
+        if late > WAKE_LATE_S:
+            self.wake_late += 1
 
     def run_for(self, seconds: float) -> list[ImuBatch]:
         """Run inline until `seconds` of clock time have passed (simulated or real)."""

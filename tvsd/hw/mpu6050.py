@@ -2,14 +2,15 @@
 
 Register facts are from the MPU-6000/6050 Register Map rev 4.2 and Product Specification rev 3.4.
 
-Transfers: the FIFO is drained with SMBus block reads of whole frames, two 12-byte frames
-(accel xyz + gyro xyz, big-endian int16) per ``read_i2c_block_data`` call (24 of the 32 bytes an
-SMBus block read allows). A whole-frame read never leaves half a frame in the FIFO, works on every
-Linux adapter (including SMBus-only ones, which reject ``i2c_rdwr``), and is what the simulated
-twin implements. Its cost: 3 header bytes per 24 payload bytes, 78 % bus efficiency — two sensors
-at 1 kHz use ~63 % of a 400 kHz bus (see :func:`bus_budget`), so a 100 kHz bus is too slow and
-hil/README.md says to raise it. ``i2c_rdwr`` bursts would reach ~99 % and fewer syscalls; they are
-not worth a second code path at this load.
+Transfers: a sensor polled alone drains its FIFO with SMBus block reads of whole frames, two
+12-byte frames (accel xyz + gyro xyz, big-endian int16) per block read (24 of the 32 bytes an
+SMBus block read allows), up to 21 of them in one ``i2c_rdwr`` where the adapter has it. A
+whole-frame read never leaves half a frame in the FIFO, and works on every Linux adapter
+(including SMBus-only ones, which reject ``i2c_rdwr``). Its cost: 3 header bytes per 24 payload
+bytes — two sensors at 1 kHz use ~63 % of a 400 kHz bus. Both sensors polled together
+(tvsd.hw.imu_joint, the reader's normal case on an adapter with ``i2c_rdwr``) read each FIFO in
+one burst: ~55 % (see :func:`bus_budget`). A 100 kHz bus is too slow either way and
+hil/README.md says to raise it.
 """
 
 from __future__ import annotations
@@ -216,16 +217,23 @@ class AngularAccelerationStream:
         return np.convolve(x, self._taps, mode="valid")
 
 
-def bus_budget(settings: ImuSettings, sensors: int = 2, bus_hz: float = 400e3) -> dict[str, float]:
+def bus_budget(
+    settings: ImuSettings, sensors: int = 2, bus_hz: float = 400e3, burst: bool = True
+) -> dict[str, float]:
     """Payload bytes/s against the bus capacity, for the polling scheme of this driver.
 
     Bits per transaction: start + address + register + restart + address + data bytes, 9 bits per
-    byte (ACK included) and ~2 bit times for start/stop.
+    byte (ACK included) and ~2 bit times for start/stop. `burst`: each poll reads a sensor's
+    frames in one burst (tvsd.hw.imu_joint, a bus with i2c_rdwr); else in 2-frame block reads.
     """
     polls = 1.0 / settings.poll_interval_s
     payload_bytes = settings.sample_rate_hz * FRAME_BYTES
-    bits_per_frame = (27 + 9 * FRAMES_PER_READ * FRAME_BYTES + 2) / FRAMES_PER_READ
-    poll_bits = polls * ((27 + 9 * 2 + 2) + (27 + 9 * 1 + 2))  # FIFO_COUNT + INT_STATUS
+    if burst:
+        bits_per_frame = 9.0 * FRAME_BYTES
+        poll_bits = polls * ((27 + 9 * 2 + 2) + (27 + 2) + (27 + 9 * 1 + 2))  # count, burst, INT_STATUS
+    else:
+        bits_per_frame = (27 + 9 * FRAMES_PER_READ * FRAME_BYTES + 2) / FRAMES_PER_READ
+        poll_bits = polls * ((27 + 9 * 2 + 2) + (27 + 9 * 1 + 2))  # FIFO_COUNT + INT_STATUS
     used = sensors * (settings.sample_rate_hz * bits_per_frame + poll_bits)
     max_rate = (bus_hz / sensors - poll_bits) / bits_per_frame
     return {
@@ -355,13 +363,33 @@ class Mpu6050:
         self.reset_fifo()
         return chip
 
-    def reset_fifo(self) -> None:
-        """Empty the FIFO and restart it aligned on a frame; clears a pending overflow flag."""
-        self._write(FIFO_EN, 0, "FIFO_EN")
-        self._write(USER_CTRL, USER_FIFO_RESET, "USER_CTRL (FIFO reset)")
-        self._write(FIFO_EN, FIFO_EN_GYRO_ACCEL, "FIFO_EN")
-        self._write(USER_CTRL, USER_FIFO_EN, "USER_CTRL (FIFO on)")
-        self.read_overflow()
+    def reset_fifo(self, status_first: bool = False) -> bool:
+        """Empty the FIFO and restart it aligned on a frame; clears a pending overflow flag.
+        With `status_first`, INT_STATUS is read before the reset too: returns whether the FIFO
+        had overflowed (else False). A bus with i2c_rdwr does it all in one combined transfer
+        (one round trip, not five: a reader that fell behind resyncs without falling further)."""
+        writes = [
+            (FIFO_EN, 0, "FIFO_EN"),
+            (USER_CTRL, USER_FIFO_RESET, "USER_CTRL (FIFO reset)"),
+            (FIFO_EN, FIFO_EN_GYRO_ACCEL, "FIFO_EN"),
+            (USER_CTRL, USER_FIFO_EN, "USER_CTRL (FIFO on)"),
+        ]
+        rdwr = getattr(self.bus, "i2c_rdwr", None)
+        if rdwr is None:
+            flag = self.read_overflow() if status_first else False
+            for register, value, what in writes:
+                self._write(register, value, what)
+            self.read_overflow()
+            return flag
+        before, after = i2c_msg.read(self.address, 1), i2c_msg.read(self.address, 1)
+        msgs = [i2c_msg.write(self.address, [INT_STATUS]), before] if status_first else []
+        msgs += [i2c_msg.write(self.address, [register, value]) for register, value, _ in writes]
+        msgs += [i2c_msg.write(self.address, [INT_STATUS]), after]
+        try:
+            rdwr(*msgs)
+        except OSError as exc:
+            raise self._fail("write of FIFO_EN/USER_CTRL (combined FIFO reset)", exc) from exc
+        return status_first and bool(bytes(before)[0] & INT_FIFO_OFLOW)
 
     def is_running(self) -> bool:
         """False after a power cycle or reset behind our back (asleep or FIFO off)."""

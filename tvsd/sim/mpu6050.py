@@ -34,7 +34,7 @@ import numpy as np
 from scipy.signal import butter, group_delay, sos2tf, sosfilt, sosfilt_zi
 
 from tvsd.hw import mpu6050 as reg
-from tvsd.hw.imu_clock import Clock
+from tvsd.hw.imu_clock import Clock, ManualClock
 from tvsd.sim.imu_motion import MotionSource
 
 GYRO_NOISE_DPS_RTHZ = 0.005  # rate noise spectral density (datasheet)
@@ -186,12 +186,14 @@ class SimMpu6050:
         counts = np.rint(x / lsb + self._self_test_lsb())
         return np.clip(counts, -32768, 32767).astype(np.int64)
 
-    def update(self) -> None:
-        """Take the samples due by now; append them to the FIFO if it is on."""
+    def update(self, now: float | None = None) -> None:
+        """Take the samples due by now (or by `now`: the bus's time inside a combined transfer
+        on a simulated clock); append them to the FIFO if it is on."""
         if self.regs[reg.PWR_MGMT_1] & reg.PWR_SLEEP:
             self._restart_clock()
             return
-        due = int(np.floor((self.clock.now() - self._t0) * self.rate_hz))
+        now = self.clock.now() if now is None else now
+        due = int(np.floor((now - self._t0) * self.rate_hz))
         if due <= self._ticks:
             return
         start = time.process_time()
@@ -208,8 +210,8 @@ class SimMpu6050:
                 self.regs[reg.INT_STATUS] |= reg.INT_FIFO_OFLOW
         self.cpu_s += time.process_time() - start
 
-    def read(self, register: int, length: int, partial: bool = False) -> list[int]:
-        self.update()
+    def read(self, register: int, length: int, partial: bool = False, now: float | None = None) -> list[int]:
+        self.update(now)
         if register == reg.FIFO_R_W:
             n = int(self._rng.integers(1, length)) if partial else length
             data = bytes(self.fifo[:n]).ljust(n, b"\xff")
@@ -225,8 +227,8 @@ class SimMpu6050:
             self.regs[reg.INT_STATUS] = 0  # cleared by reading
         return out
 
-    def write(self, register: int, value: int) -> None:
-        self.update()
+    def write(self, register: int, value: int, now: float | None = None) -> None:
+        self.update(now)
         if register == reg.PWR_MGMT_1 and value & reg.PWR_RESET:
             self.hard_reset()
             return
@@ -282,19 +284,26 @@ class SimI2CBus:
         self.bits = 0
         self.closed = False
         self._owed: int | None = None  # bits of the combined transfer in progress, not yet slept
+        self._t_start = 0.0  # when that transfer began
+        self._msg_now = 0.0  # the devices' time for the message in progress
+        self._manual = isinstance(clock, ManualClock)
 
     def _transaction(self, addr: int, nbytes: int, register: int, write: bool) -> str | None:
         """Charge bus time, apply faults; returns 'partial' when a FIFO read must half-happen."""
         if self.closed:
             raise OSError(errno.EBADF, os.strerror(errno.EBADF))
         self.transactions += 1
-        bits = (18 + 9 * nbytes + 2) if write else (27 + 9 * nbytes + 2)
+        header = 18 if write else 27  # start, address, register (+ restart, address)
+        bits = header + 9 * nbytes + 2
         self.bits += bits
-        if self._owed is not None:  # inside a combined transfer: charged once at its end
-            self._owed += bits
-        elif self.bus_hz:
-            self.clock.sleep(bits / self.bus_hz)
-        now = self.clock.now()
+        if self._owed is not None:  # inside a combined transfer: slept once at its end
+            self._owed += header
+            now = self._msg_now = self._device_now()  # its data phase begins
+            self._owed += bits - header
+        else:
+            if self.bus_hz:
+                self.clock.sleep(bits / self.bus_hz)
+            now = self._msg_now = self.clock.now()
         result = None
         for f in self.faults:
             if f.address not in (None, addr) or (f.op != "any" and (f.op == "write") != write):
@@ -321,17 +330,27 @@ class SimI2CBus:
             self._raise(errno.EIO)
         return result
 
+    def _device_now(self) -> float:
+        """The time the devices see. Inside a combined transfer on a simulated clock (slept
+        once at the end): its start plus the bits clocked until the message's data phase (a
+        count latched then, a burst popping from then on: new frames join behind what it
+        pops), each message after the one before, as on the wire. On a real-time clock the
+        time itself: the twins must not sample a plant's future."""
+        if self._owed is not None and self._manual and self.bus_hz:
+            return self._t_start + self._owed / self.bus_hz
+        return self.clock.now()
+
     def _raise(self, code: int) -> None:
         self.errors += 1
         raise OSError(code, os.strerror(code))
 
     def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
         self._transaction(i2c_addr, 1, register, write=False)
-        return self.devices[i2c_addr].read(register, 1)[0]
+        return self.devices[i2c_addr].read(register, 1, now=self._msg_now)[0]
 
     def write_byte_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None:
         self._transaction(i2c_addr, 1, register, write=True)
-        self.devices[i2c_addr].write(register, value)
+        self.devices[i2c_addr].write(register, value, now=self._msg_now)
 
     def read_i2c_block_data(
         self, i2c_addr: int, register: int, length: int, force: bool | None = None
@@ -350,7 +369,7 @@ class SimI2CBus:
         byte write. The read messages' bytes, in order; a failing message fails the whole, as
         the kernel then copies nothing back (what the earlier reads popped is gone)."""
         out: list[int] = []
-        self._owed = 0
+        self._owed, self._t_start = 0, self.clock.now()
         try:
             self._messages(msgs, out)
         finally:
@@ -359,8 +378,10 @@ class SimI2CBus:
                 # One sleep for the whole transfer, as the kernel's ioctl blocks once: a sleep per
                 # transaction released and retook the GIL each time, and in the SIL devices'
                 # process, beside the plant's thread, each retake waited up to a switch interval
-                # (a 21-pair FIFO read: ~6 ms of bus time took 20-40 ms).
-                self.clock.sleep(owed / self.bus_hz)
+                # (a 21-pair FIFO read: ~6 ms of bus time took 20-40 ms). Until the transfer's
+                # end on the bus: the twins' own computing (Python, on a loaded CPU) happens
+                # within its bit time, as the chip's does, not on top of it.
+                self.clock.sleep(max(self._t_start + owed / self.bus_hz - self.clock.now(), 0.0))
         return out
 
     def _messages(self, msgs: list[tuple[int, bool, int, bytes]], out: list[int]) -> None:
@@ -375,7 +396,7 @@ class SimI2CBus:
                 if not 0 < length <= reg.FIFO_SIZE:
                     raise ValueError(f"read of {length} bytes")
                 partial = self._transaction(addr, length, data[0], write=False) == "partial"
-                out += self.devices[addr].read(data[0], length, partial=partial)
+                out += self.devices[addr].read(data[0], length, partial=partial, now=self._msg_now)
                 if partial:
                     self._raise(errno.EIO)
                 i += 2

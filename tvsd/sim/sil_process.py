@@ -34,6 +34,7 @@ from typing import Any
 
 from tvsd.config import Config
 from tvsd.hw import i2c_remote as wire
+from tvsd.sim.sil_watch import StallWatch, TimedBus
 
 PR_SET_PDEATHSIG = 1
 SIL_PRIORITY = (
@@ -195,11 +196,11 @@ def _serve_control(ctl: socket.socket, dev: Devices) -> str:
             f.flush()
 
 
-def _serve_bus(sock: socket.socket, dev: Devices, realtime: bool) -> None:
+def _serve_bus(sock: socket.socket, handler: wire.Handler, realtime: bool) -> None:
     if realtime:
         with contextlib.suppress(OSError):  # refused: it keeps the process's priority
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(BUS_PRIORITY))  # this thread
-    wire.serve(sock, wire.BusHandler(dev.bus))
+    wire.serve(sock, handler)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -236,13 +237,17 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:
         print(json.dumps({"error": f"{type(exc).__name__}: {exc}"}), flush=True)
         return 1
+    bus = TimedBus(wire.BusHandler(dev.bus))
+    watch = StallWatch(dev.plant, extra=lambda: {"bus": bus.report()})
+    watch.start(args.realtime)
     try:
         threading.Thread(
-            target=_serve_bus, args=(bus_sock, dev, args.realtime), name="sil-i2c", daemon=True
+            target=_serve_bus, args=(bus_sock, bus, args.realtime), name="sil-i2c", daemon=True
         ).start()
         print(json.dumps({"port": dev.port, "pid": os.getpid()}), flush=True)
         why = _serve_control(ctl, dev)
     finally:
+        watch.stop()
         dev.close()
     if why:
         print(f"tvsd-sil: {why}", file=sys.stderr, flush=True)
