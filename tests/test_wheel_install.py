@@ -179,3 +179,23 @@ def test_a_missing_core_library_is_one_clear_line(monkeypatch: pytest.MonkeyPatc
     with pytest.raises(DeviceError, match=r"no virtual MCU library .*reinstall from a wheel built") as info:
         vm.default_library()
     assert "\n" not in str(info.value)
+
+
+def test_without_a_firmware_tree_the_stm32_image_is_one_line_and_its_bench_is_skipped(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """From the installed wheel `tvsctl bench --only mcu_stm32` ran make in
+    site-packages/firmware: a two-line "building ... failed" with make's "No such file or
+    directory", exit 3, and a whole `tvsctl bench` stopped there. Now the group says what it needs,
+    and building the image is one line naming the checkout."""
+    from tvsd.sim import emulator, qemu_mcu, stm32_bench
+
+    monkeypatch.setattr(emulator, "FIRMWARE_DIR", tmp_path / "site-packages" / "firmware")
+    monkeypatch.setattr(qemu_mcu, "missing_tools", list)
+    assert stm32_bench.bench_stm32() == {
+        "mcu_stm32_skipped": "needs a source checkout's firmware/ (make -C firmware bench-stm32)"
+    }
+    needs = r"source checkout's firmware/.*make -C firmware stm32"
+    with pytest.raises(qemu_mcu.QemuMcuError, match=needs) as info:
+        qemu_mcu.build_image()
+    assert "\n" not in str(info.value)
