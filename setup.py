@@ -1,7 +1,9 @@
 """The two build steps pyproject.toml cannot express (the metadata lives there).
 
 1. The protocol spec ships in the wheel: firmware/protocol.yaml is copied to
-   tvsd/hw/mcu/protocol.yaml, where tvsd/hw/mcu/spec.py finds it outside a source checkout.
+   tvsd/hw/mcu/protocol.yaml, where tvsd/hw/mcu/spec.py finds it outside a source checkout; so do
+   the shipped configs (config/*.yaml → tvsd/config/shipped/, the parameter sets `default` and
+   `paper` when neither $TVSD_CONFIG_DIR nor /etc/tvsd has them: tvsd/config/load.py).
 2. The firmware core is compiled for the host at build time (never at run time): the portable C core
    (firmware/core) with the host board layer (firmware/board/host) becomes tvsd/sim/_vmcu*.so, the
    library tvsd/sim/virtual_mcu.py loads with ctypes for `tvsd --sil` and `tvsctl mcu ... --sil`.
@@ -28,13 +30,17 @@ CORE = ["crc32", "frame", "pulse", "stepper", "outputs", "dispatch", "core"]
 
 
 class BuildPy(build_py):
-    """Also copy the protocol spec into the package."""
+    """Also copy the protocol spec and the shipped configs into the package."""
 
     def run(self) -> None:
         super().run()
         target = Path(self.build_lib) / "tvsd" / "hw" / "mcu" / "protocol.yaml"
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(ROOT / SPEC, target)
+        shipped = Path(self.build_lib) / "tvsd" / "config" / "shipped"
+        shipped.mkdir(parents=True, exist_ok=True)
+        for cfg in sorted((ROOT / "config").glob("*.yaml")):
+            shutil.copyfile(cfg, shipped / cfg.name)
 
 
 class BuildExt(build_ext):

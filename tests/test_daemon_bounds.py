@@ -131,6 +131,16 @@ def test_an_infinite_id_is_an_invalid_request(client: Client) -> None:
     assert "result" in client.call("status")  # the connection lives on
 
 
+def test_subscribing_to_a_topic_the_daemon_never_publishes_is_invalid_params(client: Client) -> None:
+    """`subscribe {"topic": "nope"}` answered {"subscribed": true} (a typo waits for ever); now a
+    -32602 naming the daemon's topics (tvsd.daemon.app.TOPICS)."""
+    reply = client.call("subscribe", topic="piont")
+    assert reply["error"]["code"] == -32602, reply
+    assert "status" in reply["error"]["message"] and "points" in reply["error"]["message"]
+    assert client.call("subscribe", topic="faults")["result"] == {"topic": "faults", "subscribed": True}
+    assert client.call("unsubscribe", topic="faults")["result"]["subscribed"] is False
+
+
 def test_a_batch_of_300_status_calls_is_refused_and_50_are_answered(client: Client) -> None:
     batch = [{"jsonrpc": "2.0", "id": k, "method": "status"} for k in range(300)]
     reply = client.line(json.dumps(batch).encode())

@@ -179,3 +179,65 @@ def test_a_missing_core_library_is_one_clear_line(monkeypatch: pytest.MonkeyPatc
     with pytest.raises(DeviceError, match=r"no virtual MCU library .*reinstall from a wheel built") as info:
         vm.default_library()
     assert "\n" not in str(info.value)
+
+
+def test_without_a_firmware_tree_the_stm32_image_is_one_line_and_its_bench_is_skipped(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """From the installed wheel `tvsctl bench --only mcu_stm32` ran make in
+    site-packages/firmware: a two-line "building ... failed" with make's "No such file or
+    directory", exit 3, and a whole `tvsctl bench` stopped there. Now the group says what it needs,
+    and building the image is one line naming the checkout."""
+    from tvsd.sim import emulator, qemu_mcu, stm32_bench
+
+    monkeypatch.setattr(emulator, "FIRMWARE_DIR", tmp_path / "site-packages" / "firmware")
+    monkeypatch.setattr(qemu_mcu, "missing_tools", list)
+    assert stm32_bench.bench_stm32() == {
+        "mcu_stm32_skipped": "needs a source checkout's firmware/ (make -C firmware bench-stm32)"
+    }
+    needs = r"source checkout's firmware/.*make -C firmware stm32"
+    with pytest.raises(qemu_mcu.QemuMcuError, match=needs) as info:
+        qemu_mcu.build_image()
+    assert "\n" not in str(info.value)
+
+
+def test_outside_a_checkout_the_shipped_configs_stand_in_for_a_missing_etc_tvsd(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """A plain `pip install tvsd-*.whl` then `tvsctl sim step --ref-deg 5`: "/etc/tvsd/tvsd.yaml: no
+    such config file; check the path (see config/ for examples)" — and an installed wheel has no
+    config/. The wheel carries config/*.yaml (setup.py → tvsd/config/shipped); /etc/tvsd and
+    $TVSD_CONFIG_DIR still win when they hold a config."""
+    from tvsd.config import load as L
+
+    shipped, etc = tmp_path / "shipped", tmp_path / "etc"
+    shutil.copytree(ROOT / "config", shipped)
+    monkeypatch.delenv("TVSD_CONFIG_DIR", raising=False)
+    monkeypatch.setattr(L, "CHECKOUT_DIR", tmp_path / "no-checkout")
+    monkeypatch.setattr(L, "SHIPPED_DIR", shipped)
+    monkeypatch.setattr(L, "ETC_DIR", etc)
+    assert L.config_dir() == shipped
+    assert L.load_config(params="paper") == L.load_config(ROOT / "config" / "paper.yaml")
+    etc.mkdir()
+    (etc / "tvsd.yaml").write_text((ROOT / "config" / "tvsd.yaml").read_text())
+    assert L.config_dir() == etc  # the installed config wins
+    monkeypatch.setenv("TVSD_CONFIG_DIR", str(tmp_path / "mine"))
+    assert L.config_dir() == tmp_path / "mine"
+    shutil.rmtree(shipped)
+    monkeypatch.delenv("TVSD_CONFIG_DIR")
+    shutil.rmtree(etc)
+    assert L.config_dir() == etc  # nothing anywhere: the error names /etc/tvsd, as before
+
+
+@pytest.mark.slow
+def test_the_wheel_carries_the_configs_and_sim_runs_without_etc_tvsd(venv: tuple[Path, Path]) -> None:
+    bindir, base = venv
+    if Path("/etc/tvsd/tvsd.yaml").exists():
+        pytest.skip("this machine has /etc/tvsd/tvsd.yaml, which wins over the shipped copies")
+    env = _clean_env(base)
+    del env["TVSD_CONFIG_DIR"]
+    out = json.loads(_run([bindir / "tvsctl", "sim", "step", "--ref-deg", "5", "--json"], cwd=base, env=env))
+    assert out["ref_deg"] == 5 and out["settling_time_s"] > 0
+    probe = "from tvsd.config import config_dir; print(config_dir())"
+    where = _run([bindir / "python", "-c", probe], cwd=base, env=env).strip()
+    assert where.startswith(str(bindir.parent)) and where.endswith("tvsd/config/shipped")

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from tvsd.cli import argtypes
 from tvsd.cli.output import fmt, print_json, print_table
 from tvsd.config import load_config
 from tvsd.errors import EXIT_OK
@@ -33,7 +34,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         action="store_true",
         help="no progress lines on stderr (there are none when stderr is not a terminal)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap that calibrates the decision")
+    p.add_argument(
+        "--seed",
+        type=argtypes.seed,
+        default=0,
+        help="seed of the bootstrap that calibrates the decision",
+    )
     p.set_defaults(func=_run)
 
 

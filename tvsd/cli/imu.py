@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tvsd.cli import argtypes
 from tvsd.cli.imu_sil import add_sil_arguments, sil_bench
 from tvsd.cli.output import print_json
 from tvsd.daemon.main import DEFAULT_DATA
@@ -365,6 +366,6 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     calp.add_argument("--sil-moving", action="store_true", help="--sil: keep the motor spinning")
     calp.set_defaults(func=cmd_calibrate)
     bench = sub.add_parser("bench", help="CPU per second of capture, bus budget")
-    bench.add_argument("--seconds", type=float, default=5.0)
+    bench.add_argument("--seconds", type=argtypes.number(0.1, 3600, "s"), default=5.0)
     bench.add_argument("--json", action="store_true")
     bench.set_defaults(func=cmd_bench)

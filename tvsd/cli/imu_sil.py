@@ -13,6 +13,7 @@ import argparse
 
 import numpy as np
 
+from tvsd.cli import argtypes
 from tvsd.control.setup import Setup
 from tvsd.errors import UsageError
 from tvsd.hw.imu_clock import Clock, ManualClock, MonotonicClock
@@ -24,12 +25,32 @@ from tvsd.sim.mpu6050 import FAULT_KINDS, Fault, SimI2CBus, SimMpu6050, sil_pair
 def add_sil_arguments(p: argparse.ArgumentParser) -> None:
     """The options that shape the simulated bench (all but --sil itself)."""
     p.add_argument("--realtime", action="store_true", help="with --sil: run at wall-clock pace")
-    p.add_argument("--rps", type=float, default=25.0, help="--sil: rotation rate, rev/s")
-    p.add_argument("--imbalance", type=float, default=2.0, help="--sil: line at rps, rad/s^2")
-    p.add_argument("--vibration", type=float, default=0.3, help="--sil: OU std, rad/s^2")
-    p.add_argument("--resonance-hz", type=float, default=0.0)
-    p.add_argument("--resonance", type=float, default=0.0, help="--sil: its amplitude, rad/s^2")
-    p.add_argument("--gamma-deg", type=float, default=0.0, help="--sil: rod tilt")
+    p.add_argument(
+        "--rps",
+        type=argtypes.number(0, 100, "rev/s"),
+        default=25.0,
+        help="--sil: rotation rate, rev/s",
+    )
+    p.add_argument(
+        "--imbalance",
+        type=argtypes.number(0, 1e4, "rad/s^2"),
+        default=2.0,
+        help="--sil: line at rps, rad/s^2",
+    )
+    p.add_argument(
+        "--vibration",
+        type=argtypes.number(0, 1e4, "rad/s^2"),
+        default=0.3,
+        help="--sil: OU std, rad/s^2",
+    )
+    p.add_argument("--resonance-hz", type=argtypes.number(0, 1e4, "Hz"), default=0.0)
+    p.add_argument(
+        "--resonance",
+        type=argtypes.number(0, 1e4, "rad/s^2"),
+        default=0.0,
+        help="--sil: its amplitude, rad/s^2",
+    )
+    p.add_argument("--gamma-deg", type=argtypes.number(-90, 90, "deg"), default=0.0, help="--sil: rod tilt")
     p.add_argument(
         "--motion",
         choices=("plant", "synthetic"),
@@ -43,7 +64,7 @@ def add_sil_arguments(p: argparse.ArgumentParser) -> None:
         metavar="NAME:k=v,...",
         help="--sil with the plant: effects of the drive model (tvsctl sim spin --help)",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=argtypes.seed, default=0)
     p.add_argument("--sil-fault", action="append", default=[], metavar="KIND:START:END[:SENSOR]")
     p.add_argument("--sil-who-am-i", type=lambda s: int(s, 0), default=None)
 

@@ -19,6 +19,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from tvsd.cli import argtypes
 from tvsd.cli.output import print_json, print_pairs, print_table
 from tvsd.errors import EXIT_FAILURE, EXIT_OK, DeviceError, UsageError
 from tvsd.hw.mcu.link import McuLink, McuSettings
@@ -124,8 +125,8 @@ def cmd_ping(args: argparse.Namespace) -> int:
         raise UsageError(f"--count must be at least 1, got {args.count}")
     if args.interval < 0:
         raise UsageError(f"--interval must not be negative, got {args.interval}")
-    if not args.timeout > 0:
-        raise UsageError(f"--timeout must be more than 0 s, got {args.timeout}")
+    if not 0 < args.timeout <= 60:  # NaN too
+        raise UsageError(f"--timeout must be more than 0 s, got {args.timeout} (and at most 60 s)")
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise UsageError(f"--plot {args.plot}: the plot is written as PNG; give a file name ending in .png")
 
@@ -202,13 +203,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ping = sub.add_parser("ping", help="heartbeat round-trip times")
     _common(ping)
     ping.add_argument("--count", type=int, default=100, help="heartbeats (default %(default)s)")
-    ping.add_argument("--interval", type=float, default=0.01, help="s between (%(default)s)")
-    ping.add_argument("--timeout", type=float, default=0.2, help="s to wait for each answer (%(default)s)")
+    ping.add_argument(
+        "--interval",
+        type=argtypes.number(0, 60, "s"),
+        default=0.01,
+        help="s between (%(default)s)",
+    )
+    ping.add_argument(
+        "--timeout",
+        type=float,
+        default=0.2,
+        help="s to wait for each answer (%(default)s)",
+    )
     ping.add_argument(
         "--plot", type=Path, metavar="FILE.png", help="draw the round-trip histogram into FILE.png"
     )
     ping.set_defaults(func=cmd_ping)
     stats = sub.add_parser("stats", help="link counters of both sides")
     _common(stats)
-    stats.add_argument("--seconds", type=float, default=1.0, help="listen first (%(default)s)")
+    stats.add_argument(
+        "--seconds",
+        type=argtypes.number(0, 3600, "s"),
+        default=1.0,
+        help="listen first (%(default)s)",
+    )
     stats.set_defaults(func=cmd_stats)

@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 
 from tvsd.causes import Effect, catalogue_help, parse_effects
+from tvsd.cli import argtypes
 from tvsd.cli.output import print_json, print_pairs, print_table, warn
 from tvsd.config import Config, Gains, load_config
 from tvsd.errors import EXIT_OK, UsageError
@@ -42,7 +43,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
     t6 = simsub.add_parser("table6", help="reproduce the paper's Table 6 (settling times)")
     common(t6, params_default="paper")
-    t6.add_argument("--ku", type=float, help="drive gain ku (default: the config's table6_ku)")
+    t6.add_argument(
+        "--ku",
+        type=argtypes.number(0, 1e4, "V/V", low_open=True),
+        help="drive gain ku (default: the config's table6_ku)",
+    )
     t6.set_defaults(func=_table6)
 
     eff_help = "switch an effect on (repeatable), NAME:key=value,...; effects:\n" + catalogue_help()
@@ -55,7 +60,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     spin.add_argument("--rps", type=float, required=True, help="speed setpoint, rev/s")
     spin.add_argument("--seconds", type=float, default=10.0, help="simulated time (default 10 s)")
     spin.add_argument("--effect", action="append", default=None, metavar="NAME:k=v,...", help=eff_help)
-    spin.add_argument("--seed", type=int, help="random seed (default: the SIL profile's)")
+    spin.add_argument("--seed", type=argtypes.seed, help="random seed (default: the SIL profile's)")
     spin.set_defaults(func=_spin)
 
     rec = simsub.add_parser(
@@ -80,10 +85,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         default="V",
         help="what the u column is: drive voltage, motor current, torque kM*i, or duty (u_scale = limit)",
     )
-    rec.add_argument("--rps", type=float, default=20.0, help="spin profile speed (default 20 rev/s)")
+    rec.add_argument(
+        "--rps",
+        type=argtypes.number(-100, 100, "rev/s"),
+        default=20.0,
+        help="spin profile speed (default 20 rev/s)",
+    )
     rec.add_argument("--seconds", type=float, default=60.0, help="length (default 60 s)")
     rec.add_argument("--effect", action="append", default=None, metavar="NAME:k=v,...", help=eff_help)
-    rec.add_argument("--seed", type=int, default=1)
+    rec.add_argument("--seed", type=argtypes.seed, default=1)
     rec.add_argument(
         "--sigma-v",
         type=float,
@@ -237,6 +247,8 @@ def _record(args: argparse.Namespace) -> int:
     cfg = _config(args)
     seconds = _seconds(args.seconds, 1.0, 3600.0)
     effects = _effects(args) or ()
+    if args.profile in ("spin", "identify") and not 0.5 <= abs(args.rps) <= 100:
+        raise UsageError(f"--rps {args.rps:g} is outside the drive's range 0.5–100 rev/s (either sign)")
     if args.sigma_v is not None:
         if not 0 <= args.sigma_v <= 100 or not math.isfinite(args.sigma_v):
             raise UsageError(f"--sigma-v {args.sigma_v:g} is outside [0, 100]")

@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from tvsd.cli import argtypes
 from tvsd.cli.output import print_json, print_table
 from tvsd.config import load_config
 from tvsd.errors import EXIT_OK, UsageError
@@ -43,7 +44,7 @@ def register(simsub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
         help=f"plant effect (repeatable; default {DEFAULT_EFFECT}; 'none' for none)",
     )
     p.add_argument("--estimator", choices=("centred", "causal"), default="centred", help="β estimator")
-    p.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+    p.add_argument("--seed", type=argtypes.seed, default=1, help="random seed (default 1)")
     p.add_argument("--points", type=Path, metavar="FILE", help="write the compensated points (.csv or .ply)")
     p.set_defaults(func=handle)
 

@@ -51,13 +51,25 @@ class Config:
         return self.sil if self.sil is not None else SilConfig()
 
 
+CHECKOUT_DIR = Path(__file__).resolve().parents[2] / "config"  # tvsd/config/load.py → the checkout
+ETC_DIR = Path("/etc/tvsd")
+# config/*.yaml as an installed wheel carries them (setup.py copies them there)
+SHIPPED_DIR = Path(__file__).resolve().parent / "shipped"
+
+
 def config_dir() -> Path:
-    """Where the shipped config files are: $TVSD_CONFIG_DIR, the source tree, or /etc/tvsd."""
+    """Where the config files are: $TVSD_CONFIG_DIR, the source tree, /etc/tvsd, or (an installed
+    wheel with no /etc/tvsd/tvsd.yaml) the copies shipped in the package — so `tvsctl sim … --params
+    paper` and `tvsd --sil` work from a plain `pip install` (it said "/etc/tvsd/tvsd.yaml: no such
+    config file; … see config/" where there is no config/)."""
     env = os.environ.get("TVSD_CONFIG_DIR")
     if env:
         return Path(env)
-    in_tree = Path(__file__).resolve().parents[2] / "config"  # tvsd/config/load.py → the checkout
-    return in_tree if in_tree.is_dir() else Path("/etc/tvsd")
+    if CHECKOUT_DIR.is_dir():
+        return CHECKOUT_DIR
+    if (ETC_DIR / "tvsd.yaml").is_file() or not (SHIPPED_DIR / "tvsd.yaml").is_file():
+        return ETC_DIR
+    return SHIPPED_DIR
 
 
 PARAM_SETS = {"default": "tvsd.yaml", "paper": "paper.yaml"}

@@ -54,6 +54,8 @@ from tvsd.errors import TvsdError
 from tvsd.hw.can.bridge import CanBridge
 
 S = DaemonState
+# what the daemon publishes (rpc.publish): status, points (device_events), faults (fault_policy)
+TOPICS = ("status", "points", "faults")
 
 
 class Daemon(DeviceEvents):
@@ -97,7 +99,8 @@ class Daemon(DeviceEvents):
             d.rpc_max_batch, d.rpc_max_reply_bytes, d.rpc_rate_per_s, d.rpc_burst,
             d.rpc_max_concurrent, d.rpc_max_clients, d.rpc_rate_total_per_s,
         )  # fmt: skip
-        self.rpc = RpcServer(socket_path, self.api.methods(), limits=limits)
+        # the topics it publishes: `subscribe` to any other (a typo) is a -32602 naming them
+        self.rpc = RpcServer(socket_path, self.api.methods(), limits=limits, topics=TOPICS)
         self.can = CanBridge(cfg.can, self.api.can_command)
         self._state = StateMachine(on_change=self._state_changed)
         self.target_rps = 0.0

@@ -70,8 +70,9 @@ class FaultPolicy(RecordingControl):
         self._holds_listed = holds.resumed
         self._fault(
             FaultKind.MCU_LATE_INPUT,
-            f"MCU state frames late: {new} hold(s) of PWM 0 past {self.cfg.mcu.link_timeout_ms:g} ms "
-            f"(longest since start {holds.longest_s * 1e3:.1f} ms); the MCU sent every frame on time "
+            f"MCU state frames late: {new} hold(s) of PWM 0 from {self.cfg.mcu.link_timeout_ms:g} ms "
+            f"without a frame (the longest hold since start lasted {holds.longest_s * 1e3:.1f} ms); "
+            "the MCU sent every frame on time "
             "(no gap in its stamps): the host's serial input was delayed",
             "not latched: control resumed from the measurement (status link.late_input_holds)",
         )

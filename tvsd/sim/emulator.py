@@ -27,15 +27,28 @@ def _die_with_parent() -> None:
     _prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
 
 
+def have_firmware_tree() -> bool:
+    """A source checkout's firmware/ is beside the package (an installed wheel has none: it carries
+    the host core only, tvsd/sim/_vmcu*.so)."""
+    return (FIRMWARE_DIR / "Makefile").is_file()
+
+
 def make(target: str, out: Path, error: type[Exception]) -> Path:
-    """`make -C firmware <target>`; `out`, or one clear `error`."""
+    """`make -C firmware <target>`; `out`, or one clear `error` on one line."""
+    if not have_firmware_tree():
+        raise error(
+            f"the {target} firmware image is built from a source checkout's firmware/ (the installed "
+            f"package carries only the host core): run make -C firmware {target} in a tvsd checkout"
+        )
     proc = subprocess.run(
         ["make", "-C", str(FIRMWARE_DIR), target], capture_output=True, text=True, check=False
     )
     if proc.returncode != 0 or not out.exists():
+        lines = proc.stderr.strip().splitlines() or ["no output"]
+        # the compiler's first error says why; make's own last line ("*** [...] Error 1") does not
+        said = next((ln for ln in lines if "error" in ln.lower()), lines[-1]).strip()[:300]
         raise error(
-            f"building {out} failed (make -C {FIRMWARE_DIR} {target}, status {proc.returncode}):\n"
-            f"{proc.stderr.strip()[-2000:]}"
+            f"building {out} failed (make -C {FIRMWARE_DIR} {target}, status {proc.returncode}): {said}"
         )
     return out
 

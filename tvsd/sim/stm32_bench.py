@@ -30,7 +30,7 @@ from typing import Any
 from tvsd.hw.mcu.link import McuLink, StateSample
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import FRAME_OVERHEAD, load_spec
-from tvsd.sim import qemu_mcu
+from tvsd.sim import emulator, qemu_mcu
 
 EXCHANGE_HZ = 10_000
 BAUD = 2_000_000  # the image's (BOARD_BAUD in firmware/board/stm32f405/board.c)
@@ -49,6 +49,8 @@ def bench_stm32(phase_ticks: int = PHASE_TICKS, pings: int = 50, repeats: int = 
     missing = qemu_mcu.missing_tools()
     if missing:
         return {"mcu_stm32_skipped": f"missing {' '.join(missing)} (make system-deps)"}
+    if not emulator.have_firmware_tree():  # an installed wheel: no firmware/ to build the image from
+        return {"mcu_stm32_skipped": "needs a source checkout's firmware/ (make -C firmware bench-stm32)"}
     image = qemu_mcu.build_image()
     with qemu_mcu.QemuMcu(image, icount=True) as q:
         return asyncio.run(_bench(q, phase_ticks, pings, repeats))
