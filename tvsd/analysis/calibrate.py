@@ -40,7 +40,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter as sig_lfilter
 
-from tvsd.analysis.coherence import coherent
 from tvsd.analysis.design import Design, Option, resonance_columns
 
 AR_ORDER = 6
@@ -200,10 +199,7 @@ def test_all(design: Design, seed: int = 0, boot: int = BOOTSTRAP, alpha: float 
     # the null each of the N_f ordinates 2|F|²/n of white noise is χ²₂, independently.
     fs_rows = 1.0 / float(np.median(np.diff(design.prep.t_rows)))
     f_hi = RES_BAND * min(design.prep.band.cutoff_hz, fs_rows / 2)
-    ref = _reference_rows(design)  # closed loop: where the residual follows it (tvsd.analysis.coherence)
-    scan = _line_scan(
-        e0, [x[keep] for x in _excitation_rows(design)], fs_rows, f_hi, None if ref is None else ref[keep]
-    )
+    scan = _line_scan(e0, [x[keep] for x in _excitation_rows(design)], fs_rows, f_hi)
     drss_res, f0 = scan.peak(e0)
     f_ref = _refine_frequency(design, f0, a, keep, Q0, e0)
     tested.append(Tested("resonance", None, float(_lr(n, rss0, drss_res)), 0.0, 1.0, frequency_hz=f_ref))
@@ -398,17 +394,7 @@ def _excitation_rows(design: Design) -> list[np.ndarray]:
     return out
 
 
-def _reference_rows(design: Design) -> np.ndarray | None:
-    """The speed reference's rows where the line scan takes the reference's lines (closed loop)."""
-    ref = design.prep.data.refs.get("omega_ref")
-    return design.prep.band_rows(ref) if ref is not None and LINES_OF_REFERENCE else None
-
-
-def _line_scan(
-    e: np.ndarray, signals: list[np.ndarray], fs: float, f_hi: float, follows: np.ndarray | None = None
-) -> LineScan:
-    """`follows`: the speed reference's rows; where the residual is coherent with it the line is
-    the excitation's misfit, not a mode (tvsd.analysis.coherence), and is left out too."""
+def _line_scan(e: np.ndarray, signals: list[np.ndarray], fs: float, f_hi: float) -> LineScan:
     n = len(e)
     f = np.fft.rfftfreq(n, 1.0 / fs)
     width = max(int(FLOOR_HZ / max(float(f[1] - f[0]), 1e-12)), 21)
@@ -420,8 +406,6 @@ def _line_scan(
         pu = np.abs(np.fft.rfft(u - u.mean())) ** 2
         lines |= pu > math.log(len(pu) / 0.01) * _floor(pu, width)
     near = np.convolve(lines.astype(float), np.ones(5), mode="same") > 0
-    if follows is not None:
-        near |= coherent(e, follows, fs, f)
     return LineScan(f, scan & ~near, width)
 
 

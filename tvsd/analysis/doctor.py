@@ -29,7 +29,6 @@ from scipy.stats import chi2
 from tvsd.analysis import absorber, instrument, selection, sense
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
-from tvsd.analysis.coherence import coherent
 from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.noise import NoiseReport, analyse, spectral_cause
 from tvsd.analysis.prep import Band, prepare
@@ -229,9 +228,6 @@ def _diagnose(
     J = params["J"]
     # The peak is tested before the low-pass colour (noise.spectral_cause), not only once it fired.
     peak = note is None and spectral_cause(noise, COLOUR_P) == "resonance"
-    if peak and "omega_ref" in data.refs:  # a peak the residual has with the reference: its misfit
-        ref_rows = prep.band_rows(data.refs["omega_ref"])[out.keep]
-        peak = not coherent(resid[out.keep], ref_rows, rate_rows, np.array([noise.peak_hz]))[0]
     peak_amp = abs(J) * math.sqrt(2.0) * noise.peak_rms
     if cause == "none" and peak:
         # Coloured, and the colour is a narrow peak: a structural mode, not a low-pass disturbance.
