@@ -15,8 +15,17 @@ command's lines), `ls1` (the folds' rule on, the lines still the command's).
 
     python -m tvsd.analysis.matrix_closed OUT.jsonl [--reps 15] [--nulls 30] [--sizes 3,10]
         [--seed 0] [--worker 0 --workers 1] [--variants ls,iv] [--reversal]
-    python -m tvsd.analysis.matrix_closed 'OUT*.jsonl' --summary
     python -m tvsd.analysis.matrix_closed 'OUT*.jsonl' --confusion [--variant ls]
+    python -m tvsd.analysis.matrix_closed 'OUT*.jsonl' --figures      # matrix.summarise's keys
+
+The per-cause limits (issue 12, item 5; the closed-loop counterpart of tvsd.analysis.matrix_open):
+`--cells` draws the plan cell by cell (plan_cells: every cause at every size and `--nulls` nulls per
+round, σv stratified per cell), `--cache DIR` keeps the recordings so a rule can be re-judged on
+the same files, and `--summary` prints matrix_open's table (tvsd.analysis.matrix_limits):
+
+    nice -n 5 python -m tvsd.analysis.matrix_closed OUT.w0.jsonl --cells --reps 8 --nulls 4 \
+        --sizes 3,10,30 --seed 71 --variants ls --no-gain --cache DIR --worker 0 --workers 2
+    python -m tvsd.analysis.matrix_closed 'OUT.w*.jsonl' --summary [--json] [--variant ls]
 """
 
 from __future__ import annotations
