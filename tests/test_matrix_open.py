@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from tvsd.analysis import matrix as M
-from tvsd.analysis.matrix_open import causes, limits, nulls, plan, pooled
+from tvsd.analysis.matrix_limits import limits, nulls, pooled
+from tvsd.analysis.matrix_open import causes, plan
 
 
 def test_plan_covers_every_cause_size_and_excitation():

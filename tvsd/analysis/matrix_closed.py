@@ -15,8 +15,17 @@ command's lines), `ls1` (the folds' rule on, the lines still the command's).
 
     python -m tvsd.analysis.matrix_closed OUT.jsonl [--reps 15] [--nulls 30] [--sizes 3,10]
         [--seed 0] [--worker 0 --workers 1] [--variants ls,iv] [--reversal]
-    python -m tvsd.analysis.matrix_closed 'OUT*.jsonl' --summary
     python -m tvsd.analysis.matrix_closed 'OUT*.jsonl' --confusion [--variant ls]
+    python -m tvsd.analysis.matrix_closed 'OUT*.jsonl' --figures      # matrix.summarise's keys
+
+The per-cause limits (issue 12, item 5; the closed-loop counterpart of tvsd.analysis.matrix_open):
+`--cells` draws the plan cell by cell (plan_cells: every cause at every size and `--nulls` nulls per
+round, σv stratified per cell), `--cache DIR` keeps the recordings so a rule can be re-judged on
+the same files, and `--summary` prints matrix_open's table (tvsd.analysis.matrix_limits):
+
+    nice -n 5 python -m tvsd.analysis.matrix_closed OUT.w0.jsonl --cells --reps 8 --nulls 4 \
+        --sizes 3,10,30 --seed 71 --variants ls --no-gain --cache DIR --worker 0 --workers 2
+    python -m tvsd.analysis.matrix_closed 'OUT.w*.jsonl' --summary [--json] [--variant ls]
 """
 
 from __future__ import annotations
@@ -28,6 +37,7 @@ import json
 import math
 import tempfile
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +87,36 @@ def round_length(n_null: int, reps: int, sizes: tuple[float, ...]) -> int:
     return len(names) * len(sizes) + -(-n_null // max(reps, 1))
 
 
+def plan_cells(reps: int, sizes: tuple[float, ...], seed: int, nulls: int = 1) -> list[M.Case]:
+    """The per-cause plan (as matrix_open.plan, closed loop): `reps` rounds of every cause at every
+    size once and `nulls` nulls; the i-th case of a cause and size (offset by its place in the
+    round) has σv = SIGMAS[i % 3], so any three consecutive ones of a cell hold every σv. (`plan`
+    cycles σv over the whole order: with a round length divisible by 3 a cell kept one σv.)"""
+    cfg = load_config()
+    names = tuple(M._effects(cfg.plant, cfg.drive.u_max_v, np.random.default_rng(0)))
+    order: list[tuple[str, float, int]] = []
+    count: Counter[tuple[str, float]] = Counter()
+    for _ in range(reps):
+        for j, key in enumerate([(c, m) for c in names for m in sizes] + [("none", 0.0)] * nulls):
+            order.append((*key, count[key] + j))
+            count[key] += 1
+    out = []
+    for k, (cause, m, i) in enumerate(order):
+        g = np.random.default_rng([seed, 13, k])
+        plant = M._plant(cfg, g)
+        sigma = M.SIGMAS[i % 3]
+        text, torque = None, math.nan
+        if cause != "none":
+            text, torque = M._effects(plant, cfg.drive.u_max_v, g)[cause](m)
+        units = torque / (plant.J * sigma) if math.isfinite(torque) else math.nan
+        if cause == "colored_noise":  # the null's spectrum below the corner (matrix.coloured_sigma)
+            sigma = M.coloured_sigma(sigma, m * M.COLOUR_TAU_S)
+        p = {k2: getattr(plant, k2) for k2 in ("J", "kv", "R", "kM", "tau_c")}
+        rps = M.scan_rps(plant, cfg.drive.u_max_v)
+        out.append(M.Case(10_000 * seed + k, cause, m, units, text, "identify", sigma, p, rps))
+    return out
+
+
 def case_config(case: M.Case, identify: dict[str, Any] | None = None) -> Config:
     cfg = M.case_config(load_config(), case)
     if identify:
@@ -114,21 +154,24 @@ def analyse(path: Path, cfg: Config, variant: str) -> tuple[str, float, dict[str
     return found, time.perf_counter() - t0, why
 
 
-def sized(case: M.Case, cfg: Config, tmp: Path, seconds: float) -> M.Case:
+def sized(case: M.Case, cfg: Config, tmp: Path, seconds: float, keep: bool = False) -> M.Case:
     """A closed-loop saturation set where the command is: the case recorded without it (same
     seed: same noise and excitation) gives the command, and u_max sits m × 1 % below its 99 %
     quantile, as in open loop (matrix.saturation_size). From the drive limit, 0.97–0.90 ×
-    u_max lay above every command of a scanning plant held with ≤ 40 % of the drive."""
+    u_max lay above every command of a scanning plant held with ≤ 40 % of the drive. `keep`: the
+    pilot stays in `tmp` (a cache) and is reused."""
     if case.cause != "saturation":
         return case
     from tvsd.sim.record import record
 
     pilot = tmp / f"pilot{case.seed}.csv"
-    record(cfg, pilot, "identify", seconds, (), case.seed, rps=case.rps)
+    if not (keep and pilot.exists()):
+        record(cfg, pilot, "identify", seconds, (), case.seed, rps=case.rps)
     from tvsd.analysis.dataset import load
 
     u = load(pilot, cfg).u
-    pilot.unlink()
+    if not keep:
+        pilot.unlink()
     u_max, excess = M.saturation_size(u, case.size)
     units = excess * cfg.plant.kM * cfg.plant.ku / cfg.plant.R / (cfg.plant.J * case.sigma_v)
     return dataclasses.replace(case, effect=f"saturation:u_max={u_max:.6g}", noise_units=units)
@@ -151,27 +194,42 @@ def run(
     variants: tuple[str, ...],
     seconds: float = 30.0,
     identify: dict[str, Any] | None = None,
+    cache: Path | None = None,
+    gain: bool = True,
 ) -> None:
+    """`cache`: keep the recordings (and a clip's pilot) there and reuse them, so a rule can be
+    re-judged on the same files; `gain=False` skips the held-out speed simulation, which runs after
+    the cause is decided and changes no answer (matrix_open._no_gain)."""
     from tvsd.sim.record import record
 
+    if not gain:
+        from tvsd.analysis.matrix_open import _no_gain
+
+        _no_gain()
     done = {json.loads(line)["seed"] for line in out.read_text().splitlines()} if out.exists() else set()
     with tempfile.TemporaryDirectory() as tmp:
+        folder = cache or Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
         for case in cases:
             if case.seed in done:
                 continue
             cfg = case_config(case, identify)
-            case = sized(case, cfg, Path(tmp), seconds)
+            case = sized(case, cfg, folder, seconds, keep=cache is not None)
             effects: tuple[Effect, ...] = (parse_effect(case.effect),) if case.effect else ()
-            path = Path(tmp) / f"case{case.seed}.csv"
+            path = folder / f"case{case.seed}.csv"
             t0 = time.perf_counter()
-            record(cfg, path, "identify", seconds, effects, case.seed, rps=case.rps)
+            if not path.exists():
+                part = path.with_suffix(".part")
+                record(cfg, part, "identify", seconds, effects, case.seed, rps=case.rps)
+                part.rename(path)
             row: dict[str, Any] = {**dataclasses.asdict(case), "record_s": time.perf_counter() - t0}
             row["seen"] = seen(path, case, cfg)
             for v in variants:
                 row[v], row[f"{v}_s"], row[f"{v}_why"] = analyse(path, cfg, v)
             with out.open("a") as f:
                 f.write(json.dumps(row) + "\n")
-            path.unlink()
+            if cache is None:
+                path.unlink()
 
 
 def summary(rows: list[dict[str, Any]], variant: str) -> dict[str, Any]:
@@ -189,7 +247,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("out", type=Path)
     ap.add_argument("--reps", type=int, default=15)
-    ap.add_argument("--nulls", type=int, default=30)
+    ap.add_argument("--nulls", type=int, default=30, help="nulls in all (--cells: per round)")
     ap.add_argument("--sizes", default="3,10")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--worker", type=int, default=0)
@@ -199,33 +257,55 @@ def main() -> None:
     rounds_help = "only the plan's first N rounds (paired with a full run)"
     ap.add_argument("--rounds", type=int, default=0, help=rounds_help)
     ap.add_argument("--identify", default="", help="identify: overrides as JSON")
-    ap.add_argument("--summary", action="store_true")
+    ap.add_argument("--cells", action="store_true", help="the per-cause plan (plan_cells: σv per cell)")
+    ap.add_argument("--cache", type=Path, help="keep (and reuse) the recordings here")
+    ap.add_argument("--no-gain", action="store_true", help="skip the held-out speed simulation")
+    ap.add_argument("--summary", action="store_true", help="print the per-cause limits (--variant's)")
+    ap.add_argument("--json", action="store_true", help="--summary as JSON")
+    ap.add_argument("--figures", action="store_true", help="matrix.summarise's keys per variant")
     ap.add_argument(
         "--confusion", action="store_true", help="print the confusion table (tvsd.analysis.confusion)"
     )
-    ap.add_argument("--variant", default="ls", help="--confusion: which variant's answers")
+    ap.add_argument("--variant", default="ls", help="--summary/--confusion: which variant's answers")
     a = ap.parse_args()
-    if a.summary or a.confusion:  # OUT may be a glob (the workers' files together)
+    if a.summary or a.confusion or a.figures:  # OUT may be a glob (the workers' files together)
         files = [Path(f) for f in sorted(glob.glob(str(a.out)))] or [a.out]
-        rows = [json.loads(line) for f in files for line in f.read_text().splitlines()]
+        rows = [json.loads(line) for f in files for line in f.read_text().splitlines() if line.strip()]
         if a.confusion:
             from tvsd.analysis.confusion import table
 
             print(table(rows, a.variant))
-            return
-        variants = [v for v in VARIANTS if any(v in r for r in rows)]
-        print(json.dumps({v: summary(rows, v) for v in variants}, indent=1, default=str))
+        elif a.figures:
+            variants = [v for v in VARIANTS if any(v in r for r in rows)]
+            print(json.dumps({v: summary(rows, v) for v in variants}, indent=1, default=str))
+        else:
+            from tvsd.analysis import matrix_limits as L
+
+            rows = [r for r in rows if a.variant in r]
+            if a.json:
+                lim = {
+                    "limits_95": L.limits(rows, 0.95, a.variant),
+                    "limits_90": L.limits(rows, 0.9, a.variant),
+                }
+                print(json.dumps({**lim, **L.nulls(rows, a.variant)}))
+            else:
+                print(L.table(rows, a.variant))
         return
     sizes = tuple(float(x) for x in a.sizes.split(","))
-    cases = plan(a.nulls, a.reps, sizes, a.seed)
-    if a.rounds:
-        cases = cases[: a.rounds * round_length(a.nulls, a.reps, sizes)]
+    if a.cells:
+        cases = plan_cells(a.reps, sizes, a.seed, a.nulls)
+        if a.rounds:
+            cases = cases[: a.rounds * (len(cases) // max(a.reps, 1))]
+    else:
+        cases = plan(a.nulls, a.reps, sizes, a.seed)
+        if a.rounds:
+            cases = cases[: a.rounds * round_length(a.nulls, a.reps, sizes)]
     if a.causes:
         keep = set(a.causes.split(",")) | {"none"}
         cases = [c for c in cases if c.cause in keep]
     mine = [c for k, c in enumerate(cases) if k % a.workers == a.worker]
     ident = json.loads(a.identify) if a.identify else None
-    run(a.out, mine, tuple(a.variants.split(",")), identify=ident)
+    run(a.out, mine, tuple(a.variants.split(",")), identify=ident, cache=a.cache, gain=not a.no_gain)
 
 
 if __name__ == "__main__":
