@@ -12,7 +12,9 @@ the effect: the pilot), state the size in units the test can see:
 - friction asymmetry: the share of moving samples in the less-used direction;
 - delay: b_u·rms(u(t) − u(t − τ)) in noise units (matrix.delay_torque) on the recorded command;
 - drift: the term's change over the run in noise units (R: Δ·b_u·rms u, kv: Δ·kv·rms ω,
-  friction: Δ·τc), as the open-loop table states it.
+  friction: Δ·τc), as the open-loop table states it;
+- imbalance, cogging: the revolutions the shaft's angle spans (max − min of ∫ω dt over 2π): a
+  torque periodic N times per revolution shows its period only over ≥ 1/N of a turn.
 
 Noise units are torque over J·σv (tvsd.analysis.matrix).
 """
@@ -69,4 +71,7 @@ def exposure(
             "friction": plant.tau_c,
         }[str(p["parameter"])]
         out["units"] = rel * term / jsv
+    elif e.name in ("imbalance", "cogging"):
+        angle = np.cumsum(omega) * dt
+        out["revolutions"] = float(np.max(angle) - np.min(angle)) / (2 * math.pi)
     return {k: (round(v, 5) if math.isfinite(v) else v) for k, v in out.items()}

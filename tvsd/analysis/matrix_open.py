@@ -120,6 +120,24 @@ def run(out: Path, cases: list[M.Case], cache: Path | None = None, seconds: floa
                 path.unlink()
 
 
+def identifiable(row: dict[str, Any]) -> bool:
+    """Whether the case's recording can show its cause as such. A torque periodic N times per
+    revolution (imbalance N = 1, cogging N = its order) shows its period only where the angle
+    spans ≥ 1/N of a turn: over less, the once- and N-per-revolution blocks are both smooth
+    functions of the arc, and which of the two the doctor names (it names one: the torque is
+    there) is not a finding (30× imbalances on weak plants, trapped like a pendulum, spanning
+    0.20 and 0.47 of a turn: `cogging` at z 13.0 and 32.2 beside `imbalance` at 11.7 and 30.9).
+    Scored apart only when the doctor named an angle-periodic cause; any other answer is a miss."""
+    cause = row.get("cause")
+    if cause not in ("imbalance", "cogging") or row.get("ls") not in ("imbalance", "cogging"):
+        return True
+    order = 1.0
+    if cause == "cogging" and row.get("effect"):
+        order = float(parse_effect(row["effect"]).params.get("order", 1.0))
+    revolutions = row.get("seen", {}).get("revolutions")
+    return revolutions is None or revolutions >= 1.0 / order
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("out", type=Path)
@@ -139,6 +157,14 @@ def main() -> None:
     if a.summary or a.confusion:  # OUT may be a glob (the workers' files together)
         files = [Path(f) for f in sorted(glob.glob(str(a.out)))] or [a.out]
         rows = [json.loads(x) for f in files for x in f.read_text().splitlines() if x.strip()]
+        apart = [r for r in rows if not identifiable(r)]
+        rows = [r for r in rows if identifiable(r)]
+        if apart:
+            said = [
+                f"{r['seed']} {r['cause']} {r['size']:g}x {r['seen']['revolutions']:.2f} rev -> {r['ls']}"
+                for r in apart
+            ]
+            print(f"scored apart (not identifiable): {len(apart)}: " + ", ".join(said))
         if a.confusion:
             from tvsd.analysis.confusion import table as confusion
 
