@@ -143,3 +143,11 @@ def test_a_closed_loop_null_at_identifys_line_and_a_mode_off_the_lines(tmp_path,
     dg = diagnose(load(path, cfg), cfg.plant.v0)
     assert load(path, cfg).excitation_hz and dg.cause == "resonance"
     assert abs(float(dg.effect["frequency_hz"]) - 49.61) < 0.05
+
+
+def test_sim_record_declares_the_open_loop_multisine_and_identify_lines(tmp_path) -> None:
+    cfg = load_config()
+    record(cfg, tmp_path / "ms.csv", "multisine", 2.0, (), seed=3)
+    assert read(tmp_path / "ms.csv").excitation_hz == pytest.approx(np.geomspace(0.2, 20.0, 8), rel=1e-5)
+    record(cfg, tmp_path / "st.csv", "steps", 2.0, (), seed=3)
+    assert read(tmp_path / "st.csv").excitation_hz == ()  # a staircase has no lines to declare

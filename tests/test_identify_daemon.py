@@ -93,6 +93,7 @@ def test_identify_records_its_excitation_feeds_analyze_and_a_fault_aborts_it(dae
         [*cli, "export", str(path), "--csv", str(out), *window], capture_output=True, text=True, timeout=60
     )
     assert exp.returncode == 0, exp.stderr
+    assert load(out, load_config()).excitation_hz[-1] == 8.0  # `# excitation_hz:`, from the start mark
     ana = subprocess.run(
         [*cli, "analyze", str(out), "--json", "--quiet"], capture_output=True, text=True, timeout=300
     )
