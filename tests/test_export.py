@@ -121,7 +121,7 @@ def test_the_identify_excitation_is_exported_as_u_exc_averaged_per_sample(tmp_pa
         v = np.where(np.random.default_rng(3).random(100) < 0.5, -0.5, 0.5)
         exc = rec.channel("excitation", [("t", "<f8"), ("d_rps", "<f8"), ("d_volts", "<f8")])
         exc.append({"t": T0 + 0.1005 + j / 1000, "d_rps": np.zeros(100), "d_volts": v})
-        rec.mark("identify_start", t_loop=T0 + 0.1, t0=T0 + 0.1005)
+        rec.mark("identify_start", t_loop=T0 + 0.1, t0=T0 + 0.1005, lines_hz=[8.0, 0.2, 0.6000000000000001])
         rec.mark("identify_end", t_loop=T0 + 0.150, outcome="aborted", reason="a fault")
     status, _, err = _export(monkeypatch, capsys, tmp_path / "rec", tmp_path / "o.csv")
     assert status == 0, err
@@ -129,6 +129,7 @@ def test_the_identify_excitation_is_exported_as_u_exc_averaged_per_sample(tmp_pa
     header = (tmp_path / "o.csv").read_text().splitlines()
     columns = next(line for line in header if not line.startswith("#")).split(",")
     assert columns[:10] == ["t", "u", "omega", "phi", "omega_ref", "phi_ref", "u_ff", "u_exc", "gap", "fault"]
+    assert csv.excitation_hz == (0.2, 0.6, 8.0)  # identify's multisine lines, from its start mark
     played = v[:50]  # rows from 0.1505 s on come after the abort mark (0.150 s)
     want = np.zeros(len(k))
     # bin k is (k − 1 … k) ms after T0; row j (0.1005 + j/1000 s on) is half in bin 101 + j, half

@@ -56,6 +56,7 @@ def test_identify_records_its_excitation_feeds_analyze_and_a_fault_aborts_it(dae
     rec = open_recording(path)
     assert [m["event"] for m in _marks(rec)] == ["identify_start", "identify_end"]
     assert _marks(rec)[1]["outcome"] == "done"
+    assert _marks(rec)[0]["lines_hz"][-1] == 8.0  # the multisine's lines, for export's excitation_hz
     exc, ref, loop = rec.channels["excitation"], rec.channels["reference"], rec.channels["loop"]
     assert len(exc) == 20_000
     played = (ref["t"] >= exc["t"][0]) & (ref["t"] <= exc["t"][-1])
@@ -92,6 +93,7 @@ def test_identify_records_its_excitation_feeds_analyze_and_a_fault_aborts_it(dae
         [*cli, "export", str(path), "--csv", str(out), *window], capture_output=True, text=True, timeout=60
     )
     assert exp.returncode == 0, exp.stderr
+    assert load(out, load_config()).excitation_hz[-1] == 8.0  # `# excitation_hz:`, from the start mark
     ana = subprocess.run(
         [*cli, "analyze", str(out), "--json", "--quiet"], capture_output=True, text=True, timeout=300
     )

@@ -54,6 +54,7 @@ class Dataset:
     path: Path | None = None
     u_unit: str = "V"
     refs: dict[str, np.ndarray] = field(default_factory=dict)  # closed-loop reference columns
+    excitation_hz: tuple[float, ...] = ()  # the excitation's declared lines (`# excitation_hz:`)
 
     @property
     def duration_s(self) -> float:
@@ -76,6 +77,7 @@ class Dataset:
             self.path,
             self.u_unit,
             {k: v[start:stop] for k, v in self.refs.items()},
+            self.excitation_hz,
         )
 
 
@@ -116,6 +118,7 @@ def load(path: Path, cfg: Config) -> Dataset:
         path=path,
         u_unit="V" if unit == "duty" else unit,
         refs=refs,
+        excitation_hz=rec.excitation_hz,
     )
 
 

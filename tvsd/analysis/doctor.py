@@ -30,7 +30,7 @@ from tvsd.analysis import absorber, instrument, selection, sense
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis.dataset import Dataset
-from tvsd.analysis.noise import NoiseReport, analyse, spectral_cause
+from tvsd.analysis.noise import NoiseReport, analyse, on_declared_line, spectral_cause
 from tvsd.analysis.prep import Band, prepare
 from tvsd.analysis.simulate import ReducedModel, simulate
 from tvsd.causes import Effect
@@ -228,6 +228,7 @@ def _diagnose(
     J = params["J"]
     # The peak is tested before the low-pass colour (noise.spectral_cause), not only once it fired.
     peak = note is None and spectral_cause(noise, COLOUR_P) == "resonance"
+    peak = peak and not on_declared_line(noise, data.excitation_hz)  # the excitation's own line
     peak_amp = abs(J) * math.sqrt(2.0) * noise.peak_rms
     if cause == "none" and peak:
         # Coloured, and the colour is a narrow peak: a structural mode, not a low-pass disturbance.

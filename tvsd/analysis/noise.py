@@ -65,6 +65,18 @@ def spectral_cause(report: NoiseReport, p_value: float) -> str | None:
     return None
 
 
+def on_declared_line(report: NoiseReport, lines_hz: tuple[float, ...]) -> bool:
+    """Whether an excitation line the recording declares (`# excitation_hz:`) lies in the spectral
+    peak's half-power band, f/(2Q) each side (at least the spectrum's resolution): the rigid
+    model's misfit of the response to that line makes such a peak (a closed-loop null's 7.91 Hz,
+    Q 35, beside identify's 8 Hz line, seed 62), and a mode there cannot be told from it."""
+    if not lines_hz or not math.isfinite(report.peak_hz):
+        return False
+    df = float(report.freq[1] - report.freq[0]) if len(report.freq) > 1 else 0.0
+    half = max(report.peak_hz / (2.0 * report.peak_q), df) if report.peak_q > 0 else df
+    return any(abs(report.peak_hz - f) <= half for f in lines_hz)
+
+
 def ljung_box(x: np.ndarray, lags: int = 20) -> float:
     x = x - x.mean()
     n = len(x)

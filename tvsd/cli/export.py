@@ -32,7 +32,7 @@ import numpy as np
 from tvsd.cli.export_states import OMEGA_SOURCE, from_states
 from tvsd.cli.output import warn
 from tvsd.errors import EXIT_OK, UsageError
-from tvsd.recording.csvfile import write
+from tvsd.recording.csvfile import format_lines, write
 from tvsd.recording.format import LOOP_CHANNEL
 from tvsd.recording.reader import flatten_config, open_recording
 from tvsd.recording.table import Table, loop_table
@@ -146,6 +146,9 @@ def _run(args: argparse.Namespace) -> int:
     }
     if rec.stats is not None:
         meta["dropped_rows"] = rec.stats.get("channels", {}).get(args.channel, {}).get("dropped_rows", 0)
+    lines = declared_lines(rec.marks) if args.channel == LOOP_CHANNEL else ()
+    if lines:  # identify's multisine lines: the doctor leaves them out of its resonance scan
+        meta["excitation_hz"] = format_lines(lines)
     meta.update(_gap_meta(table))
     meta.update(_fault_meta(table))
     meta.update(flatten_config(rec.config_text, CONFIG_SECTIONS))
@@ -194,6 +197,13 @@ def write_csv(path: Path, table: Table, meta: dict[str, object]) -> None:
     extra = {name: cols.pop(name) for name in order if name in cols}
     extra.update(cols)
     write(path, table.t, u, omega, phi, table.rate_hz, meta, {k: np.asarray(v) for k, v in extra.items()})
+
+
+def declared_lines(marks: list[dict[str, Any]]) -> tuple[float, ...]:
+    """The multisine frequencies (Hz) of every identify run in the recording (its start marks'
+    `lines_hz`), sorted: the recording CSV's `# excitation_hz:`."""
+    found = {float(f) for m in marks if m.get("event") == "identify_start" for f in m.get("lines_hz") or ()}
+    return tuple(sorted(found))
 
 
 def played(rows: np.ndarray, marks: list[dict[str, Any]]) -> np.ndarray:

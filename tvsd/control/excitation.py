@@ -43,6 +43,8 @@ class Excitation:
     d_volts: np.ndarray
     kinds: tuple[str, ...]
     seed: int
+    lines_hz: tuple[float, ...] = ()  # the multisine's frequencies: recorded, so the doctor skips them
+
 
     @property
     def seconds(self) -> float:
@@ -61,6 +63,7 @@ class Excitation:
             "seed": self.seed,
             "peak_rps": float(np.max(np.abs(self.d_rps))) if len(self.d_rps) else 0.0,
             "peak_volts": float(np.max(np.abs(self.d_volts))) if len(self.d_volts) else 0.0,
+            "lines_hz": list(self.lines_hz),
         }
 
 
@@ -72,15 +75,17 @@ def build(s: IdentifySettings, setpoint_rps: float = 0.0, accel_rps2: float = 0.
     rng = np.random.default_rng(s.seed)
     d_rps = np.zeros(n)
     d_volts = np.zeros(n)
+    lines: tuple[float, ...] = ()
     if "steps" in s.kinds and s.step_rps > 0:
         d_rps += steps(n, round(s.step_hold_s * s.table_rate_hz), s.step_rps, rng)
     if "multisine" in s.kinds and s.multisine_rps > 0:
         d_rps += multisine(t, s.multisine_min_hz, s.multisine_max_hz, s.multisine_rps)
+        lines = tuple(float(f) for f in multisine_lines(s.multisine_min_hz, s.multisine_max_hz))
     if "prbs" in s.kinds and s.prbs_v > 0:
         d_volts += s.prbs_v * prbs(n, max(1, round(s.prbs_clock_s * s.table_rate_hz)), rng)
     if "reversal" in s.kinds:
         d_rps += reversal(t, s, abs(setpoint_rps), accel_rps2)
-    return Excitation(1.0 / s.table_rate_hz, d_rps, d_volts, tuple(s.kinds), s.seed)
+    return Excitation(1.0 / s.table_rate_hz, d_rps, d_volts, tuple(s.kinds), s.seed, lines)
 
 
 def reversal(t: np.ndarray, s: IdentifySettings, setpoint_rps: float, accel_rps2: float) -> np.ndarray:
@@ -117,8 +122,7 @@ def steps(n: int, hold: int, size: float, rng: np.random.Generator) -> np.ndarra
 def multisine(t: np.ndarray, f_min: float, f_max: float, peak: float) -> np.ndarray:
     """Harmonics of f_min up to f_max (at most MAX_LINES, log-spaced), Schroeder phases, scaled to
     `peak` and faded in/out with a raised cosine over 1/f_min."""
-    k_max = math.floor(f_max / f_min + 1e-9)
-    ks = np.unique(np.round(np.geomspace(1, k_max, min(MAX_LINES, k_max))).astype(int))
+    ks = _harmonics(f_min, f_max)
     phases = -math.pi * ks * (ks - 1) / len(ks)
     x = np.sum(np.cos(2 * math.pi * f_min * ks[:, None] * t[None, :] + phases[:, None]), axis=0)
     x *= peak / max(float(np.max(np.abs(x))), 1e-12)
@@ -130,6 +134,16 @@ def multisine(t: np.ndarray, f_min: float, f_max: float, peak: float) -> np.ndar
         w[tail] = 0.5 - 0.5 * np.cos(math.pi * (t[-1] - t[tail]) / fade)
         x *= w
     return x
+
+
+def _harmonics(f_min: float, f_max: float) -> np.ndarray:
+    k_max = math.floor(f_max / f_min + 1e-9)
+    return np.unique(np.round(np.geomspace(1, k_max, min(MAX_LINES, k_max))).astype(int))
+
+
+def multisine_lines(f_min: float, f_max: float) -> np.ndarray:
+    """The multisine's frequencies, Hz: what a recording declares as `# excitation_hz:`."""
+    return f_min * _harmonics(f_min, f_max)
 
 
 def prbs(n: int, hold: int, rng: np.random.Generator) -> np.ndarray:

@@ -3,6 +3,7 @@
     # tvs-recording: 1
     # sample_rate_hz: 1000
     # <key>: <value>            optional metadata
+    # excitation_hz: 0.2 0.4 …  optional: the lines the excitation was designed with (Hz)
     t,u,omega,phi[,more...]     SI: s, V, rad/s, rad (phi optional: integrated from omega)
 
 A bad file raises DataFileError with one line naming the file, the row (1-based line of the file)
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 import math
 import stat
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,6 +45,7 @@ class Recording:
     extra: Mapping[str, np.ndarray] = field(default_factory=dict)
     path: Path | None = None
     phi_measured: bool = True  # False: phi was integrated from omega
+    excitation_hz: tuple[float, ...] = ()  # `# excitation_hz:` (the excitation's known lines)
 
 
 def write(
@@ -106,12 +108,14 @@ def read(path: Path) -> Recording:
             " (is this a tvs recording? see docs/architecture.md, 'Recording CSV')",
         )
     meta: dict[str, str] = {}
+    meta_row: dict[str, int] = {}
     row = 1
     while row < len(lines) and lines[row].startswith("#"):
         key, colon, value = lines[row][1:].partition(":")
         if not colon:
             raise fail(row + 1, f"metadata line {lines[row]!r} is not '# key: value'")
         meta[key.strip()] = value.strip()
+        meta_row[key.strip()] = row + 1
         row += 1
     if "sample_rate_hz" not in meta:
         raise fail(2, "missing '# sample_rate_hz: <Hz>' metadata line")
@@ -122,6 +126,7 @@ def read(path: Path) -> Recording:
     if not (math.isfinite(rate) and rate > 0):
         raise fail(2, f"sample_rate_hz must be a positive number, got {meta['sample_rate_hz']!r}")
     _check_unit(meta, fail)
+    lines_hz = excitation_lines(meta.get("excitation_hz"), rate, meta_row.get("excitation_hz", 2), fail)
     if row >= len(lines):
         raise fail(row + 1, "missing the column header line (t,u,omega[,phi,...])")
     header = [h.strip() for h in lines[row].split(",")]
@@ -146,7 +151,38 @@ def read(path: Path) -> Recording:
         dt = np.diff(cols["t"])
         phi = np.concatenate([[0.0], np.cumsum(0.5 * (cols["omega"][1:] + cols["omega"][:-1]) * dt)])
     extra = {k: v for k, v in cols.items() if k not in ("t", "u", "omega", "phi")}
-    return Recording(cols["t"], cols["u"], cols["omega"], phi, rate, meta, extra, path, phi_measured)
+    return Recording(
+        cols["t"], cols["u"], cols["omega"], phi, rate, meta, extra, path, phi_measured, lines_hz
+    )
+
+
+def format_lines(lines_hz: Iterable[float]) -> str:
+    """The `# excitation_hz:` value of a sequence of frequencies (Hz), space-separated."""
+    return " ".join(f"{float(f):.6g}" for f in lines_hz)
+
+
+def excitation_lines(value: str | None, rate: float, row: int, fail: Failer) -> tuple[float, ...]:
+    """`# excitation_hz: f1 f2 …`: the frequencies (Hz) the excitation was designed with — the
+    doctor's resonance scan leaves them out (a rigid model's misfit of the response leaves a line
+    exactly there). Each must be a number in (0, sample_rate_hz/2)."""
+    if value is None:
+        return ()
+    out: list[float] = []
+    for tok in value.replace(",", " ").split():
+        try:
+            f = float(tok)
+        except ValueError:
+            f = math.nan
+        if not (math.isfinite(f) and 0 < f < rate / 2):
+            raise fail(
+                row,
+                f"excitation_hz {tok!r} is not a frequency in (0, {rate / 2:g}) Hz; the line is "
+                "'# excitation_hz: <Hz> <Hz> ...' (the excitation's lines): fix it or delete it",
+            )
+        out.append(f)
+    if not out:
+        raise fail(row, "excitation_hz is empty; give '# excitation_hz: <Hz> <Hz> ...' or delete the line")
+    return tuple(out)
 
 
 def _check_unit(meta: Mapping[str, str], fail: Failer) -> None:

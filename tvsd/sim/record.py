@@ -34,11 +34,12 @@ from tvsd.config import Config, MeasurementConfig
 from tvsd.control import excitation
 from tvsd.control.setup import Setup
 from tvsd.errors import UsageError
-from tvsd.recording.csvfile import write
+from tvsd.recording.csvfile import format_lines, write
 from tvsd.sim import runs
 
 PROFILES = ("steps", "multisine", "spin", "identify")
 U_UNITS = ("V", "A", "N*m", "duty")
+MULTISINE_HZ = tuple(float(f) for f in np.geomspace(0.2, 20.0, 8))  # the open-loop multisine's lines
 
 
 def multisine(rng: np.random.Generator, seconds: float, u_max: float, dt: float) -> np.ndarray:
@@ -46,7 +47,7 @@ def multisine(rng: np.random.Generator, seconds: float, u_max: float, dt: float)
     n = round(seconds / dt)
     t = np.arange(n) * dt
     u = np.zeros(n)
-    for f in np.geomspace(0.2, 20.0, 8):
+    for f in MULTISINE_HZ:
         u += np.sin(2 * math.pi * f * t + rng.uniform(0, 2 * math.pi))
     u *= 0.35 * u_max / max(float(np.max(np.abs(u))), 1e-12)
     k = 0
@@ -77,10 +78,12 @@ def staircase(rng: np.random.Generator, seconds: float, u_max: float, dt: float)
 
 
 def identify_table(
-    cfg: Config, setup: Setup, rps: float, seconds: float, seed: int
+    cfg: Config, setup: Setup, rps: float, seconds: float, seed: int, lines_hz: list[float] | None = None
 ) -> tuple[np.ndarray, float]:
     """`tvsctl identify`'s excitation as the closed-loop kernel's table (one row per controller
-    period), starting 1 s after the ramp to `rps`; and that start, s."""
+    period), starting 1 s after the ramp to `rps`; and that start, s. `lines_hz` (when given)
+    receives the multisine's frequencies, which the recording declares."""
+    lines_hz = [] if lines_hz is None else lines_hz
     start = abs(rps) / cfg.control.scan_accel_rps2 + 1.0
     length = seconds - start
     if length < 1.0:
@@ -90,6 +93,7 @@ def identify_table(
         )
     ident = dataclasses.replace(cfg.identify, seconds=length, max_seconds=max(length, 1.0), seed=seed)
     ex = excitation.build(ident, rps, cfg.control.scan_accel_rps2)
+    lines_hz[:] = ex.lines_hz
     n = round(seconds / setup.dt)
     k0 = round(start / setup.dt)
     table = np.zeros((n, 2))
@@ -172,14 +176,19 @@ def record(
         shape = staircase if profile == "steps" else multisine
         trace = runs.open_loop(setup, shape(rng, seconds, setup.u_max, setup.dt), decim)
         meta: dict[str, object] = {"profile": profile}
+        if profile == "multisine":
+            meta["excitation_hz"] = format_lines(MULTISINE_HZ)
     elif profile == "spin":
         trace = runs.spin(setup, rps, seconds, decim)
         meta = {"profile": "spin", "rps_setpoint": rps}
         extra = {"omega_ref": np.gradient(trace.phi_ref, trace.t), "phi_ref": trace.phi_ref}
     else:
-        exc, start = identify_table(cfg, setup, rps, seconds, seed)
+        lines: list[float] = []
+        exc, start = identify_table(cfg, setup, rps, seconds, seed, lines)
         trace = runs.spin_excited(setup, rps, seconds, exc, decim)
         meta = {"profile": "identify", "rps_setpoint": rps, "excitation_start_s": start}
+        if lines:  # the multisine's lines: the doctor leaves them out of its resonance scan
+            meta["excitation_hz"] = format_lines(lines)
         extra = {"omega_ref": np.gradient(trace.phi_ref, trace.t), "phi_ref": trace.phi_ref}
         # The voltage the excitation added after the law, averaged per sample as u is: exogenous,
         # so the doctor's instrument (tvsd.analysis.instrument), as `tvsctl export` writes it.
