@@ -66,7 +66,7 @@ def test_every_refused_candidate_says_why(realtime: Path) -> None:
     code, human = _run(str(realtime))
     assert code == 0
     assert "why not" in human.splitlines()[2]
-    assert "saturation not named: closed loop" in human
+    assert "saturation not named: in closed loop it is not confirmed" in human
     assert "colored_noise not named: closed loop" in human
 
 

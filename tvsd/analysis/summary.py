@@ -56,8 +56,13 @@ def refused(dg: Diagnosis) -> list[Any]:
 
 def _refused_text(dg: Diagnosis) -> str:
     parts = []
-    for s in refused(dg):
-        if s.cause == "colored_noise":
+    for s in sorted(refused(dg), key=lambda s: s.cause == "colored_noise"):
+        if s.cause == "colored_noise" and s.why_not[0] == "closed_loop_colour":
+            parts.append(
+                f"colored_noise is judged by its own spectral test (p = {s.p:.3g}), not by the z gate, "
+                "and not in closed loop, where the feedback shapes the residual's spectrum"
+            )
+        elif s.cause == "colored_noise":
             parts.append(f"colored_noise is not named: {s.why_not[1]}")
         else:
             parts.append(

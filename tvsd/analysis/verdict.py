@@ -44,7 +44,7 @@ WHY: dict[str, tuple[str, str]] = {
     ),
     "not_instrumented": (
         "not_instrumented",
-        "closed loop: not confirmed on the instrumented design (the command answers the noise, "
+        "in closed loop it is not confirmed on the instrumented design (the command answers the noise, "
         "so the least-squares block can fit the feedback, not the cause)",
     ),
     "drift_windows": (
