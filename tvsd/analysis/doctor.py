@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -53,6 +53,7 @@ class Scored:
     p: float  # bootstrap p-value of this cause alone
     significant: bool
     heldout_gain_pct: float = math.nan
+    why_not: tuple[str, str] | None = None  # (code, sentence) when not named (verdict.WHY)
 
 
 @dataclass
@@ -244,6 +245,10 @@ def _diagnose(
             "amplitude": math.hypot(float(effect["amplitude"]), peak_amp),
             "q": noise.peak_q,
         }
+    why = _colour_why(noise, cause, closed=note is not None or closed_ls, peak=peak)
+    ranked = [
+        replace(s, why_not=why) if s.cause == "colored_noise" and not s.significant else s for s in ranked
+    ]
     ranked.sort(key=lambda s: (s.cause != cause, not s.significant, -s.z))
     causes = _causes(design, out, verdict, cause, effect, ranked, params, err, data, seed, say)
     effect = causes[0].effect if causes else effect  # with its amplitude's standard error
@@ -270,6 +275,32 @@ def _diagnose(
         heldout is not None,
         v0,
         causes,
+    )
+
+
+def _colour_why(noise: NoiseReport, cause: str, closed: bool, peak: bool) -> tuple[str, str] | None:
+    """Why coloured noise is not named: it is judged by its own spectral test (Whittle's
+    likelihood ratio, low-pass against flat, χ²₁ at p < COLOUR_P), not by the z gate, and only
+    when no deterministic cause is named and the loop is open."""
+    if cause == "colored_noise":
+        return None
+    test = (
+        f"its score is Whittle's likelihood ratio of a low-pass against a flat residual spectrum "
+        f"(p = {noise.colour_p:.3g}), judged by that spectral test, not by the z gate"
+    )
+    if closed:
+        return (
+            "closed_loop_colour",
+            f"closed loop: the feedback shapes the residual's spectrum, so its colour says nothing "
+            f"of the vibration's; {test}",
+        )
+    if noise.colour_p >= COLOUR_P:
+        return ("spectral_test", f"{test}, and it needs p < {COLOUR_P:g}")
+    if peak:
+        return ("spectral_peak", "the residual's colour is a narrow peak: a structural mode (resonance)")
+    return (
+        "deterministic_first",
+        f"{cause} is named; the noise colour is judged only when no deterministic cause is ({test})",
     )
 
 

@@ -202,8 +202,8 @@ def _markdown(dg: Diagnosis, s: dict[str, Any]) -> str:
         "baseline and its noise), and the largest is named only above the point the bootstrap "
         f"maxima exceed 1 % of the time (here z > {dg.outcome.threshold:.2f}).",
         "",
-        "| cause | z | p alone | named | parameters |",
-        "|---|---|---|---|---|",
+        "| cause | z | p alone | named | parameters | why not |",
+        "|---|---|---|---|---|---|",
     ]
     for c in s["candidates"]:
         params = ", ".join(
@@ -212,7 +212,7 @@ def _markdown(dg: Diagnosis, s: dict[str, Any]) -> str:
         note = f" (indistinguishable here from {c['ambiguous_with']})" if "ambiguous_with" in c else ""
         lines.append(
             f"| {c['cause']}{note} | {c['score']:.1f} | {c['p_value']:.3g} | "
-            f"{'yes' if c['significant'] else 'no'} | {params} |"
+            f"{'yes' if c['significant'] else 'no'} | {params} | {c.get('why_not', {}).get('reason', '')} |"
         )
     lines += _causes_markdown(s["causes"])
     lines += [

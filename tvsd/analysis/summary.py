@@ -37,8 +37,70 @@ SENTENCES = {
 }
 
 
+def refused(dg: Diagnosis) -> list[Any]:
+    """Candidates that looked like a cause and were not named: above the z gate, or coloured
+    noise below its own spectral test's p-value (doctor.COLOUR_P)."""
+    from tvsd.analysis.doctor import COLOUR_P
+
+    out = []
+    for s in dg.ranked:
+        if s.significant or s.why_not is None or s.cause == dg.cause:
+            continue
+        colour = s.cause == "colored_noise"
+        if (colour and s.p < COLOUR_P) or (
+            not colour and dg.outcome.significant and s.z > dg.outcome.threshold
+        ):
+            out.append(s)
+    return out
+
+
+def _refused_text(dg: Diagnosis) -> str:
+    parts = []
+    for s in sorted(refused(dg), key=lambda s: s.cause == "colored_noise"):
+        if s.cause == "colored_noise" and s.why_not[0] == "closed_loop_colour":
+            parts.append(
+                f"colored_noise is judged by its own spectral test (p = {s.p:.3g}), not by the z gate, "
+                "and not in closed loop, where the feedback shapes the residual's spectrum"
+            )
+        elif s.cause == "colored_noise":
+            parts.append(f"colored_noise is not named: {s.why_not[1]}")
+        else:
+            parts.append(
+                f"{s.cause} was above the gate (z {s.z:.1f} > {dg.outcome.threshold:.2f}) but {s.why_not[1]}"
+            )
+    return "; ".join(parts)
+
+
+def period_warning(data: Any, cause: str, effect: dict[str, Any]) -> str | None:
+    """A torque periodic N times per revolution shows its period only over at least 1/N of a
+    turn (tvsd.analysis.exposure's `revolutions`); below that its sine and cosine columns are
+    a slow trend in the angle, which many things fit. The cause stays named (the decision's
+    gate and checks passed), with this said."""
+    if cause not in ("imbalance", "cogging") or data.units.axis != "rotary":
+        return None
+    order = max(int(effect.get("order", 1)), 1)
+    phi = np.asarray(data.position, dtype=float)
+    revs = float(np.max(phi) - np.min(phi)) / (2 * math.pi) if len(phi) else 0.0
+    if revs >= 1.0 / order:
+        return None
+    turn = "a turn" if order == 1 else f"1/{order} turn"
+    return (
+        f"the shaft's angle spans {revs:.2g} revolutions, less than one period of this "
+        f"{order}-per-revolution torque ({turn}): the period is not established in this recording"
+    )
+
+
 def sentence(dg: Diagnosis) -> str:
+    warn = period_warning(dg.data, dg.cause, dg.effect)
+    text = _sentence(dg)
+    return f"{text} Caution: {warn}." if warn else text
+
+
+def _sentence(dg: Diagnosis) -> str:
     if dg.cause == "none":
+        text = _refused_text(dg)
+        if text:
+            return f"No cause is named, as nothing passes every check: {text}."
         return SENTENCES["none"]
     values: dict[str, Any] = {**dg.effect, "effort": dg.data.units.effort}
     if dg.cause == "delay":
@@ -94,6 +156,11 @@ def as_json(dg: Diagnosis, report: str | None = None) -> dict[str, Any]:
                 "p_value": float(c.p),
                 "cv_gain": float(c.cv_gain),
                 "step": c.step,
+                **(
+                    {"warning": {"code": "period_not_established", "reason": w}}
+                    if (w := period_warning(dg.data, c.cause, c.effect))
+                    else {}
+                ),
             }
             for c in dg.causes
         ],
@@ -105,6 +172,8 @@ def as_json(dg: Diagnosis, report: str | None = None) -> dict[str, Any]:
                 "gain_pct": float(s.heldout_gain_pct) if math.isfinite(s.heldout_gain_pct) else None,
                 "significant": bool(s.significant),
                 "effect": _effect_json(s.cause, s.effect),
+                # why not named (verdict.WHY codes, doctor._colour_why): absent when named
+                **({"why_not": {"code": s.why_not[0], "reason": s.why_not[1]}} if s.why_not else {}),
             }
             for s in dg.ranked
         ],
@@ -141,6 +210,8 @@ def as_json(dg: Diagnosis, report: str | None = None) -> dict[str, Any]:
     }
     if dg.reason:
         out["reason"] = dg.reason
+    if warn := period_warning(dg.data, dg.cause, dg.effect):
+        out["warnings"] = [{"code": "period_not_established", "cause": dg.cause, "reason": warn}]
     if report:
         out["report"] = report
     return out

@@ -9,6 +9,7 @@ windows, and what is reported must make physical sense (tvsd.analysis.sense).
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from collections.abc import Callable
@@ -24,6 +25,41 @@ from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.prep import Band, prepare
 
 DRIFT_WINDOWS = 5
+# Why a candidate is not named: a code for programs, a sentence for people (candidates[i].why_not).
+WHY: dict[str, tuple[str, str]] = {
+    "below_gate": ("below_gate", "its z is below the gate"),
+    "command_side_dissolved": (
+        "command_side_dissolved",
+        "a command-side cause ranked above it dissolved in its structural refit, so this block "
+        "(a function of the same command) fits the same misfit",
+    ),
+    "refit_no_effect": (
+        "refit_no_effect",
+        "its structural refit (the drive fed the transformed command) lands on no effect",
+    ),
+    "refit_not_better": (
+        "refit_not_better",
+        "its structural refit does not beat the recorded command (likelihood ratio {lr:.1f} "
+        "<= 3.84, chi2 95 %): the linearised block fitted something no such map makes",
+    ),
+    "not_instrumented": (
+        "not_instrumented",
+        "in closed loop it is not confirmed on the instrumented design (the command answers the noise, "
+        "so the least-squares block can fit the feedback, not the cause)",
+    ),
+    "drift_windows": (
+        "drift_windows",
+        "refits on separate time windows do not trend the drift's way",
+    ),
+    "out_of_sample": (
+        "out_of_sample",
+        "fitted on four fifths, it does not predict the fifth left out better than the baseline",
+    ),
+    "ranked_below": (
+        "ranked_below",
+        "{named} ranked above it and was named; further causes are tested by forward selection",
+    ),
+}
 DZ_REFIT_SPAN = 0.6  # dead-zone widths profiled up to this share of the largest command
 DZ_REFIT_POINTS = 120
 DZ_CHI2_95 = 3.841  # χ²₁ 95 % point: the width's profile-likelihood interval
@@ -268,6 +304,7 @@ def name_cause(
         elif t.option is not None and t.cause not in D.INPUT_CAUSES:
             X_ext = np.column_stack([design.X, t.option.block])
         dissolved = False
+        why: tuple[str, str] | None = None  # (code, sentence): why a candidate above the gate is not named
         if above and chosen is None and t.cause in D.INPUT_CAUSES and disowned:
             # A command-side block ranked higher dissolved in its refit: what it fitted is misfit
             # where the command acts, and the other command-side blocks (functions of the same
@@ -275,14 +312,17 @@ def name_cause(
             # 3 of 6 closed-loop null alarms were a dead zone or a clip named after a dissolved
             # delay at z 8.5–9.7.
             dissolved = True
+            why = WHY["command_side_dissolved"]
         elif above and chosen is None and t.option is not None and t.cause in D.INPUT_CAUSES:
             effect, u_app = _refit_input(design, out, t.cause, u)
             X_ext = D.with_input(design, u_app)
-            dissolved = disowned = (
-                _dissolved(t.cause, effect, u, design.prep.data.sample_rate_hz)
-                or _structural_lr(design, out, u, u_app) <= STRUCTURAL_CHI2
-                or (instrumented is not None and not instrumented(t.cause))
-            )
+            if _dissolved(t.cause, effect, u, design.prep.data.sample_rate_hz):
+                why = WHY["refit_no_effect"]
+            elif (lr := _structural_lr(design, out, u, u_app)) <= STRUCTURAL_CHI2:
+                why = (WHY["refit_not_better"][0], WHY["refit_not_better"][1].format(lr=lr))
+            elif instrumented is not None and not instrumented(t.cause):
+                why = WHY["not_instrumented"]
+            dissolved = disowned = why is not None
         if (above and chosen is None) or t.cause in (
             "imbalance",
             "cogging",
@@ -295,6 +335,7 @@ def name_cause(
         ok = above and not dissolved
         if ok and t.cause == "drift" and t.coef is not None:
             ok = _drift_agrees(design, out, str(effect["parameter"]), float(t.coef[0]))
+            why = None if ok else WHY["drift_windows"]
         if ok and chosen is None:
             # Out of sample: fitted on four fifths, the extension must predict the fifth left out
             # better than the baseline (summed over the five) — what misfit of one stretch, or a
@@ -303,9 +344,15 @@ def name_cause(
             # not the structural refit, which can trade differently with friction.
             X_cv = X_ext if t.option is None else np.column_stack([design.X, t.option.block])
             ok = C.heldout_gain(design, out, X_cv) > 0.0
+            why = None if ok else WHY["out_of_sample"]
         if ok and chosen is None and instrumented is not None and t.cause in INSTRUMENTED_TOO:
             ok = instrumented(t.cause)  # a function of the command or the speed (doctor.py)
-        ranked.append(Scored(t.cause, effect, t.z, t.p, ok and chosen is None))
+            why = None if ok else WHY["not_instrumented"]
+        if not above:
+            why = WHY["below_gate"]
+        elif ok and chosen is not None:
+            why = (WHY["ranked_below"][0], WHY["ranked_below"][1].format(named=chosen[0]))
+        ranked.append(Scored(t.cause, effect, t.z, t.p, ok and chosen is None, why_not=why))
         if ok and chosen is None:
             chosen = (t.cause, effect, X_ext, u_app)
     cause, effect_out = "none", dict[str, Any]()
@@ -327,7 +374,11 @@ def name_cause(
             reason = f"the best extension, {cause}, {problem}"
     if reason is not None:
         cause, effect_out = "model_mismatch", {"reason": reason}
-        ranked = [Scored(s.cause, s.effect, s.z, s.p, False) if s.significant else s for s in ranked]
+        mismatch = ("model_mismatch", f"the model does not fit this recording: {reason}")
+        ranked = [
+            Scored(s.cause, s.effect, s.z, s.p, False, why_not=mismatch) if s.significant else s
+            for s in ranked
+        ]
     th = C.gls(design.y, X_fin, out.ar, out.keep).theta
     residual = design.y - X_fin @ th
     return Verdict(ranked, cause, effect_out, reason, residual, X_fin, th, u_fin)
@@ -386,6 +437,32 @@ def _translate(
     return {}
 
 
+def sim_model(
+    p: dict[str, float], b_u: float, speed: np.ndarray, extra: dict[str, float] | None = None
+) -> Any:
+    """The reduced model the held-out simulation runs: the fitted damping and Coulomb level as
+    fitted when the fitted rows turn one way only (`speed`, signed), else clipped at zero
+    (doctor._reduced).
+
+    Turning one way at a nearly constant speed (closed-loop scanning: ω within ±0.2 % of
+    157 rad/s), damping and Coulomb friction are nearly collinear and trade: a SIL recording gave
+    damping 1.5e-3 and Coulomb −0.229, a resisting torque of 4 mN·m at 157 rad/s made of two
+    terms of 230. Clipping the negative level kept the 230 mN·m of damping and dragged the
+    simulated speed to 3 rad/s in every window (held-out RMSE 145 rad/s for a model whose
+    equation error was small); folding it into the damping at the rows' speeds left a 2.5 mN·m
+    imbalance at 157 rad/s (window RMSE 7–18 rad/s), because the fold's 1 % error in the speed it holds at is
+    2 mN·m of that pair. One way, the pair as fitted is a line in ω over the recorded speeds,
+    and it is only used there; the sign of the Coulomb level matters only at reversals, and there
+    are none."""
+    from tvsd.analysis.doctor import _reduced
+
+    m = _reduced(p, b_u, extra)
+    one_way = len(speed) > 0 and bool(np.all(speed > 0) or np.all(speed < 0))
+    if one_way and p["J"] > 0 and math.isfinite(p["damping"]) and math.isfinite(p["tau_c"]):
+        m = dataclasses.replace(m, kv=float(p["damping"]), tau_c=float(p["tau_c"]))
+    return m
+
+
 def heldout_speed(
     design: D.Design,
     out: C.Outcome,
@@ -397,7 +474,7 @@ def heldout_speed(
     verdict: Verdict,
 ) -> tuple[float, float, dict[str, float], dict[str, np.ndarray]]:
     """Speed RMSE of baseline and extension on data their coefficients were not fitted on."""
-    from tvsd.analysis.doctor import _physical, _reduced, effect_array, simulate_speed
+    from tvsd.analysis.doctor import _physical, effect_array, simulate_speed
 
     t_rows = design.prep.t_rows
     split = t_rows[0] + D_SPLIT * (t_rows[-1] - t_rows[0])
@@ -408,6 +485,8 @@ def heldout_speed(
     base = C.gls(design.y, X_base, out.ar, out.keep, rows)
     extended = cause not in ("none", "model_mismatch", "colored_noise")
     ext = C.gls(design.y, absorber.rigid(design, verdict.X)[0], out.ar, out.keep, rows) if extended else base
+    fitted = design.rows_mask & out.keep & (True if rows is None else rows)
+    w_fit = design.prep.rows(design.prep.speed)[fitted]
     pb, _ = _physical(design, base.theta, base.cov, data.b_u, data.b_omega)
     pe, _ = _physical(design, ext.theta[:k], ext.cov[:k, :k], data.b_u, data.b_omega)
     mask = np.ones(len(target.t), dtype=bool) if heldout is not None else target.t >= split
@@ -421,7 +500,7 @@ def heldout_speed(
             v = v + float(th[k]) * u * (t - data.t[0]) / max(data.duration_s, 1e-9)
         return v / (a0 + a1) if a0 + a1 else u
 
-    w_b = simulate_speed(_reduced(pb, data.b_u), target, command(base.theta, target.u), None)
+    w_b = simulate_speed(sim_model(pb, data.b_u, w_fit), target, command(base.theta, target.u), None)
     rmse_b = float(np.sqrt(np.mean((w_b - measured)[mask] ** 2)))
     w_e, rmse_e = w_b, rmse_b
     if extended:
@@ -436,7 +515,7 @@ def heldout_speed(
             }
         eff = effect_array(cause, effect) if cause not in ("delay", "friction_asymmetry") else None
         drift_t = target.t if cause == "drift" and effect.get("parameter") == "R" else None
-        model = _reduced(pe if cause != "drift" or drift_t is not None else pb, data.b_u, scales)
+        model = sim_model(pe if cause != "drift" or drift_t is not None else pb, data.b_u, w_fit, scales)
         w_e = simulate_speed(model, target, command(ext.theta, u_cmd, drift_t), eff)
         rmse_e = float(np.sqrt(np.mean((w_e - measured)[mask] ** 2)))
     sim = {"t": target.t, "measured": measured, "baseline": w_b, "extended": w_e, "heldout": mask}

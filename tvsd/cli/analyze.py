@@ -46,7 +46,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def _run(args: argparse.Namespace) -> int:
     from tvsd.analysis import report as R
     from tvsd.analysis.dataset import load
-    from tvsd.analysis.doctor import diagnose
+    from tvsd.analysis.doctor import COLOUR_P, diagnose
     from tvsd.analysis.prep import EMPS_BAND, Band
     from tvsd.analysis.summary import as_json
 
@@ -82,13 +82,24 @@ def _run(args: argparse.Namespace) -> int:
         print()
     print_table(
         [
-            (c["cause"], f"{c['score']:.1f}", f"{c['p_value']:.3g}", "yes" if c["significant"] else "no")
+            (
+                c["cause"],
+                f"{c['score']:.1f}",
+                f"{c['p_value']:.3g}",
+                "yes" if c["significant"] else "no",
+                c["why_not"]["code"] if "why_not" in c else "",
+            )
             for c in summary["candidates"]
         ],
-        ["candidate", "z (own null)", "p (alone)", "named"],
+        ["candidate", "z (own null)", "p (alone)", "named", "why not"],
     )
     dec = summary["decision"]
     print(f"named above z = {dec['threshold']:.2f} (false-alarm rate {dec['alpha']:g})")
+    for c in summary["candidates"]:
+        # the footnotes the summary sentence names: above the gate, or coloured past its own test
+        colour_low = c["cause"] != "colored_noise" or c["p_value"] < COLOUR_P
+        if "why_not" in c and c["why_not"]["code"] != "below_gate" and colour_low:
+            print(f"  {c['cause']} not named: {c['why_not']['reason']}")
     print()
     print(
         f"held-out speed RMSE: paper's model {dg.heldout_rmse_base:.4g}, extended {dg.heldout_rmse_ext:.4g} "
