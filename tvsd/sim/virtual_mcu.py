@@ -1,10 +1,16 @@
 """Virtual MCU: the real firmware core, built for the host, behind a real pseudo-terminal.
 
-The same C core that runs on the ATmega328P (``firmware/core``) is compiled with a host board
-layer into a shared library and loaded here with ctypes: in a source checkout
-``firmware/build/libtvsmcu_host.so`` (``make -C firmware host-lib``; the top Makefile's ``run`` and
-``pytest`` build it), in an installed wheel ``tvsd/sim/_vmcu*.so`` (compiled by setup.py when the
-wheel was built). It is never built while tvsd runs. A thread pumps
+The same C core that runs on the ATmega328P (``firmware/core``), compiled with a host board
+layer into a shared library and loaded with ctypes. Who owns what:
+
+- this module: the core's clock, the plant's inputs and outputs, and the pty with the pump
+  thread that moves bytes between it and the core;
+- :mod:`tvsd.sim.vmcu_library`: finding, building (tests, developers) and loading the library
+  (its names, and :class:`VirtualMcuError`, are importable from here too);
+- :mod:`tvsd.sim.mcu_wire`: the wire model (heartbeats' send times, the watchdog cut held at its
+  edge for the pty's late hand-over), called by this module under its lock.
+
+A thread pumps
 bytes between a pty and the core, so anything that opens :attr:`VirtualMcu.port` with pyserial
 talks to the firmware's own parser, command table, watchdog and stepper planner, byte for byte.
 A paced plant writes the core's output itself after each step (:meth:`VirtualMcu.write_out`):
@@ -34,30 +40,45 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import importlib.util
 import math
 import os
 import select
 import shutil
-import subprocess
-import tempfile
 import threading
 import time
 import tty
-import zlib
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 from typing import Literal
 
-from tvsd.errors import DeviceError
-from tvsd.hw.mcu.spec import FRAME_CRC, FRAME_HEADER, load_spec
-from tvsd.sim.mcu_wire import WireStats
+from tvsd.sim.mcu_wire import WireModel, WireStats
+from tvsd.sim.vmcu_library import (
+    FIRMWARE_DIR,
+    LIBRARY,
+    PACKAGED_MODULE,
+    VirtualMcuError,
+    build_library,
+    default_library,
+    load_library,
+    packaged_library,
+)
 
-FIRMWARE_DIR = Path(__file__).resolve().parents[2] / "firmware"
-LIBRARY = FIRMWARE_DIR / "build" / "libtvsmcu_host.so"  # the checkout's (make -C firmware host-lib)
-PACKAGED_MODULE = "tvsd.sim._vmcu"  # the wheel's (setup.py's build_ext)
+# The library's names stay importable from here, where callers and tests have always found them.
+__all__ = [
+    "FIRMWARE_DIR",
+    "LIBRARY",
+    "PACKAGED_MODULE",
+    "PULSE_OPTICAL",
+    "PULSE_ZERO",
+    "STEPPER_AXES",
+    "VirtualMcu",
+    "VirtualMcuError",
+    "build_library",
+    "default_library",
+    "packaged_library",
+]
 
 PULSE_ZERO = 0
 PULSE_OPTICAL = 1
@@ -66,106 +87,6 @@ _DUTY_FULL = 32767
 _PUMP_PERIOD_S = 0.001
 _PTY_BACKLOG = 65536  # bytes held for a slow reader before the core's TX ring takes the loss
 _UART_SLICE_S = 0.001  # longest stretch of core time between two drains of its TX ring
-_HB_MAX_AGE_US = 1_000_000  # a heartbeat's host_us older than this at its read: not trusted
-
-
-class VirtualMcuError(DeviceError):
-    """The virtual MCU cannot be built, loaded or used as asked."""
-
-
-def packaged_library() -> Path | None:
-    """The core compiled into the installed package (a ctypes library: never imported)."""
-    try:
-        found = importlib.util.find_spec(PACKAGED_MODULE)
-    except (ImportError, ValueError):
-        return None
-    return Path(found.origin) if found is not None and found.origin else None
-
-
-def default_library() -> Path:
-    """The library to load: the checkout's build when this is a source checkout, else the wheel's.
-
-    Raises VirtualMcuError with the fix when neither exists (nothing is compiled here)."""
-    if (FIRMWARE_DIR / "Makefile").is_file():  # a source checkout
-        if LIBRARY.is_file():
-            return LIBRARY
-        packaged = packaged_library()
-        if packaged is not None and packaged.is_file():
-            return packaged  # `pip install -e .` compiled it from these sources
-        raise VirtualMcuError(
-            f"the virtual MCU library {LIBRARY} is not built. Fix: make -C {FIRMWARE_DIR} host-lib "
-            "(or `make run` / `make test`, which build it)"
-        )
-    packaged = packaged_library()
-    if packaged is not None and packaged.is_file():
-        return packaged
-    raise VirtualMcuError(
-        f"this tvsd install has no virtual MCU library ({PACKAGED_MODULE.replace('.', '/')}*.so): "
-        "the wheel was built without it. Fix: reinstall from a wheel built on a machine with a C "
-        "compiler (pip wheel . in the source tree; README, Installing on the scanner)"
-    )
-
-
-def build_library(path: Path = LIBRARY) -> Path:
-    """Build the checkout's library with ``make -C firmware host-lib`` if it is missing: for the
-    test suite and developers, never called by tvsd itself."""
-    if path.exists():
-        return path
-    missing = [tool for tool in ("make", "gcc") if shutil.which(tool) is None]
-    if missing:
-        raise VirtualMcuError(
-            f"{path} is missing and cannot be built: {', '.join(missing)} not found. "
-            "Fix: install the build tools (apt-get install build-essential), or run "
-            "`make -C firmware host-lib` on a machine that has them and copy the library."
-        )
-    proc = subprocess.run(
-        ["make", "-C", str(FIRMWARE_DIR), "host-lib"], capture_output=True, text=True, check=False
-    )
-    if proc.returncode != 0 or not path.exists():
-        raise VirtualMcuError(
-            f"building {path} failed (make -C {FIRMWARE_DIR} host-lib, status "
-            f"{proc.returncode}):\n{proc.stderr.strip()[-2000:]}"
-        )
-    return path
-
-
-def _load(path: Path) -> tuple[ctypes.CDLL, Path]:
-    """Load a private copy of the library: the core is a singleton per loaded image, and a
-    copy under another name gets its own, so several virtual MCUs can live in one process."""
-    tmpdir = Path(tempfile.mkdtemp(prefix="tvsmcu-"))
-    copy = tmpdir / path.name
-    shutil.copyfile(path, copy)
-    try:
-        lib = ctypes.CDLL(str(copy))
-    except OSError as exc:
-        shutil.rmtree(tmpdir, ignore_errors=True)
-        raise VirtualMcuError(f"cannot load {path}: {exc}. Fix: make -C firmware clean host-lib") from exc
-    u8, u64, i32 = ctypes.c_uint8, ctypes.c_uint64, ctypes.c_int32
-    buf = ctypes.POINTER(ctypes.c_uint8)
-    for name, res, args in (
-        ("vmcu_init", None, []),
-        ("vmcu_clock_hz", ctypes.c_uint32, []),
-        ("vmcu_now", u64, []),
-        ("vmcu_advance_to", None, [u64]),
-        ("vmcu_rx_bytes", None, [buf, ctypes.c_size_t]),
-        ("vmcu_rx_bytes_at", None, [buf, ctypes.c_size_t, u64]),
-        ("vmcu_watchdog", ctypes.c_int, [ctypes.POINTER(u64), ctypes.POINTER(u64)]),
-        ("vmcu_watchdog_defer", None, [ctypes.c_int]),
-        ("vmcu_watchdog_check", None, []),
-        ("vmcu_tx_bytes", ctypes.c_size_t, [buf, ctypes.c_size_t]),
-        ("vmcu_set_encoder", None, [i32]),
-        ("vmcu_encoder_ramp", None, [u64, ctypes.c_double, u64, ctypes.c_double]),
-        ("vmcu_pulse", None, [u8, u64]),
-        ("vmcu_set_limit", None, [u8, ctypes.c_int, i32]),
-        ("vmcu_pwm", ctypes.c_int16, []),
-        ("vmcu_laser", ctypes.c_int, []),
-        ("vmcu_stepper_position", i32, [u8]),
-        ("vmcu_step_count", ctypes.c_uint32, [u8]),
-    ):
-        fn = getattr(lib, name)
-        fn.restype = res
-        fn.argtypes = args
-    return lib, tmpdir
 
 
 class VirtualMcu:
@@ -194,8 +115,8 @@ class VirtualMcu:
         if not 0.0 <= wire_allowance_s < 10.0:
             raise VirtualMcuError(f"wire_allowance_s must be in [0, 10) s, got {wire_allowance_s}")
         self.wire_allowance_s = wire_allowance_s
-        self.wire = WireStats()
-        self._lib, self._tmpdir = _load(library or default_library())
+        self.wire = WireStats()  # what the wire model saw (tvsd.sim.mcu_wire)
+        self._lib, self._tmpdir = load_library(library or default_library())
         self._lib.vmcu_init()
         self.clock_hz: int = self._lib.vmcu_clock_hz()
         self._lock = threading.Lock()
@@ -226,13 +147,7 @@ class VirtualMcu:
         self.core_to_host: Callable[[float], float] | None = None
         # (core ticks, arrival, bytes, a heartbeat frame alone), in arrival order.
         self._rx_queue: deque[tuple[int, float, bytes, bool]] = deque()
-        self._wd_edge, self._wd_ticks = ctypes.c_uint64(), ctypes.c_uint64()
-        self._released_edge = -1  # an edge the allowance ran out at: crossed
-        self._deferring, self._held_since = False, 0.0  # the cut waits for the wire, since (monotonic)
-        spec = load_spec()
-        hb = spec.by_name("heartbeat")
-        self._hb_head = (spec.sync, hb.size, hb.id)  # a heartbeat frame's SYNC, LEN, ID
-        self._rx_tail = b""  # the last bytes read: a heartbeat split across two reads
+        self._wire = WireModel(self._lib, self.clock_hz, wire_allowance_s, self.wire)
         self._thread = threading.Thread(target=self._pump, name="virtual-mcu", daemon=True)
         self._thread.start()
 
@@ -274,16 +189,13 @@ class VirtualMcu:
         while queue and queue[0][0] <= now:
             self._rx_locked(*queue.popleft())
         # the wire model, only where this advance reaches the watchdog's edge (one call, not one a slice)
-        wire = self.wire_allowance_s > 0 and (
-            self._deferring
-            or (self._lib.vmcu_watchdog(self._wd_edge, self._wd_ticks) and ticks >= self._wd_edge.value)
-        )
+        wire = self._wire.reaches_edge(ticks)
         while now < ticks:
             now = min(ticks, now + self._slice_ticks)
             if queue and queue[0][0] < now:
                 now = queue[0][0]  # stop where the next host bytes arrived
             if wire:
-                self._defer_locked(now)
+                self._wire.defer(now, queue, self._to_host())
             self._lib.vmcu_advance_to(now)
             while queue and queue[0][0] <= now:
                 self._rx_locked(*queue.popleft())
@@ -302,17 +214,7 @@ class VirtualMcu:
         wire, not from the pty's late hand-over (vmcu_rx_bytes_at; only a heartbeat, whose
         handling is a stamp)."""
         raw = (ctypes.c_uint8 * len(data)).from_buffer_copy(data)
-        if (
-            heartbeat
-            and self._deferring
-            and self._lib.vmcu_watchdog(self._wd_edge, self._wd_ticks)
-            and when >= self._wd_edge.value  # sent at or after the edge: the host's own gap
-        ):
-            self._end_deferral_locked(released=False)
-            self._lib.vmcu_watchdog_check()  # the cut, as the tick at the edge made it: before it
-        if heartbeat and self._deferring and when >= 0:
-            # read while the cut waits for it: the next edge counts from its send tick. (Not
-            # otherwise: the ack's mcu_ticks stays the read's, as before, for the host's clock sync.)
+        if heartbeat and self._wire.heartbeat_in(when):
             self._lib.vmcu_rx_bytes_at(raw, len(data), when)
         else:
             self._lib.vmcu_rx_bytes(raw, len(data))
@@ -451,8 +353,8 @@ class VirtualMcu:
                 if self.cable_cut:  # a cut cable: what the host sends never arrives (nor ours:
                     data = b""  # _write_locked drops it)
                 if data and timeline is not None and math.isfinite(at):  # NaN: pacing not begun
-                    hb_len = FRAME_HEADER + self._hb_head[1] + FRAME_CRC
-                    for sent, part in self._sent_times(data, arrival):
+                    hb_len = self._wire.heartbeat_frame_len
+                    for sent, part in self._wire.sent_times(data, arrival):
                         if sent < arrival:  # a part that ends with a heartbeat: that frame alone
                             when, n = self._ticks(timeline(sent)), min(hb_len, len(part))
                             if len(part) > n:
@@ -486,90 +388,6 @@ class VirtualMcu:
         if self.clock == "wall" and self.wire_allowance_s > 0:
             return lambda t_s: self._t0 + t_s
         return None
-
-    def _edge_locked(self) -> int | None:
-        """The tick from which the watchdog's cut waits for the wire, or None (lock held): its
-        edge (the last heartbeat's send tick + watchdog, moved on by the heartbeats queued before
-        it) while the wire may still bring a heartbeat sent before it. None once one sent at or
-        after it is queued (the host's own gap crossed the edge: the firmware cuts), once the
-        allowance of wall time past the edge is spent (a dead host: cut, that much late), or
-        unarmed."""
-        to_host = self._to_host()
-        if self.wire_allowance_s <= 0 or to_host is None:
-            return None
-        if not self._lib.vmcu_watchdog(ctypes.byref(self._wd_edge), ctypes.byref(self._wd_ticks)):
-            return None
-        edge, wd = int(self._wd_edge.value), int(self._wd_ticks.value)
-        for when, _, _, heartbeat in self._rx_queue:
-            if heartbeat:
-                if when >= edge:
-                    return None
-                edge = when + wd
-        if edge == self._released_edge:
-            return None
-        if time.monotonic() >= to_host(edge / self.clock_hz) + self.wire_allowance_s:
-            self._released_edge = edge
-            self.wire.cut_at_allowance += 1
-            return None
-        return edge
-
-    def _defer_locked(self, upto: int) -> None:
-        """Whether the watchdog's cut waits while the core runs to `upto` (lock held): while it
-        is at or past the edge that the wire may still answer (_edge_locked). The core's time,
-        its frames and the plant run on; only the cut waits. Counts the waits."""
-        edge = self._edge_locked()
-        waiting = edge is not None and upto >= edge
-        if waiting == self._deferring:
-            return
-        if waiting:
-            self._lib.vmcu_watchdog_defer(1)
-            self._deferring, self._held_since = True, time.monotonic()
-            self.wire.holds += 1
-        else:  # moved on by a heartbeat sent in time; else crossed (the allowance spent: cut)
-            self._end_deferral_locked(released=edge is not None)
-
-    def _end_deferral_locked(self, released: bool) -> None:
-        self._lib.vmcu_watchdog_defer(0)
-        self._deferring = False
-        self.wire.hold_max_ms = max(self.wire.hold_max_ms, (time.monotonic() - self._held_since) * 1e3)
-        if released:
-            self.wire.released_by_heartbeat += 1
-
-    def _sent_times(self, data: bytes, arrival: float) -> list[tuple[float, bytes]]:
-        """`data` cut after each heartbeat frame in it, each part with the time its last byte was
-        on the wire at the latest: a heartbeat's own `host_us` (CLOCK_MONOTONIC µs when the host
-        built it, mod 2**32), the rest `arrival`. Why: host bytes reach this pty through the
-        kernel's tty flip-buffer work, a normal-priority kworker, which CPU hogs delay by tens of
-        ms, so heartbeats the host wrote 12.5 ms apart were read, and went into the core, more
-        than the 50 ms watchdog apart (firmware expiries while the host's own gaps stayed
-        13-17 ms). A real UART or USB link puts the host's bytes on the wire when it writes
-        them; so does this, for the frames that say when."""
-        sync, size, hb_id = self._hb_head
-        frame = FRAME_HEADER + size + FRAME_CRC
-        buf = self._rx_tail + data
-        skip = len(self._rx_tail)
-        self._rx_tail = buf[-(frame - 1) :]
-        parts: list[tuple[float, bytes]] = []
-        start, last = 0, -math.inf
-        arrival_us = int(arrival * 1e6)
-        i = buf.find(sync)
-        while 0 <= i <= len(buf) - frame:
-            end = i + frame
-            if buf[i + 1] == size and buf[i + 4] == hb_id and end > skip:
-                body = buf[i : i + FRAME_HEADER + size]
-                if zlib.crc32(body) == int.from_bytes(buf[i + FRAME_HEADER + size : end], "little"):
-                    host_us = int.from_bytes(buf[i + FRAME_HEADER : i + FRAME_HEADER + size], "little")
-                    age_us = (arrival_us - host_us) % 2**32
-                    if age_us <= _HB_MAX_AGE_US:
-                        self.wire.heartbeat(age_us * 1e-6)  # else not a time we can trust: the read's
-                        sent = max(last, arrival - age_us * 1e-6)
-                        parts.append((sent, data[start : end - skip]))
-                        start, last = end - skip, sent
-                    i = end - 1
-            i = buf.find(sync, i + 1)
-        if start < len(data):
-            parts.append((arrival, data[start:]))
-        return parts
 
     def write_out(self) -> None:
         """What the core has sent so far, to the pty now (non-blocking; the rest waits in the
