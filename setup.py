@@ -6,7 +6,7 @@
    `paper` when neither $TVSD_CONFIG_DIR nor /etc/tvsd has them: tvsd/config/load.py).
 2. The firmware core is compiled for the host at build time (never at run time): the portable C core
    (firmware/core) with the host board layer (firmware/board/host) becomes tvsd/sim/_vmcu*.so, the
-   library tvsd/sim/virtual_mcu.py loads with ctypes for `tvsd --sil` and `tvsctl mcu ... --sil`.
+   library tvsd/sim/vmcu_library.py loads with ctypes for `tvsd --sil` and `tvsctl mcu ... --sil`.
    Its protocol header is generated first by firmware/gen_protocol.py, which reads protocol.yaml with
    tvsd's own parser. The wheel is therefore platform-specific (it holds a shared object).
 

@@ -25,6 +25,7 @@ from contextlib import asynccontextmanager
 from dataclasses import replace
 
 from conftest import until, wait_for
+from fake_mcu_side import answer_handshake, read_host_frames
 
 from tvsd.config import load_config
 from tvsd.control.runner import LoopFault, Runner
@@ -106,19 +107,8 @@ class PacedMcu:
             self.is_dead = True
 
     def on_readable(self) -> None:
-        try:
-            data = os.read(self.master, 65536)
-        except OSError:
-            return
-        for f in self.decoder.feed(data):
-            name = SPEC.by_id(f.msg_id).name  # type: ignore[union-attr]
-            if name == "identify_req":
-                self._send("identify", SPEC.version, HZ, SPEC.table_hash, BOARD_ATMEGA)
-            elif name == "heartbeat":
-                (host_us,) = ID["heartbeat"].codec.unpack(f.payload)
-                self._send("heartbeat_ack", host_us, self.ticks())
-            elif name == "stats_req":
-                self._send("stats", self.decoder.stats.frames, 0, 0, 0, 0, 0, 0, 0)
+        for f in read_host_frames(self.master, self.decoder):
+            answer_handshake(f, self.decoder, self._send, self.ticks, board=BOARD_ATMEGA)
 
 
 @asynccontextmanager

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import pytest
 from conftest import until
+from fake_mcu_side import answer_handshake, read_host_frames
 
 from tvsd.errors import DeviceError, ProtocolError, UsageError
 from tvsd.hw.mcu.framing import Frame, FrameDecoder, encode_frame
@@ -57,22 +58,13 @@ class FakeMcu:
         return frame
 
     def on_readable(self) -> None:
-        try:
-            data = os.read(self.master, 65536)
-        except OSError:
-            return
-        for f in self.decoder.feed(data):
+        for f in read_host_frames(self.master, self.decoder):
             self.received.append(f)
-            if not self.answer:
-                continue
-            name = SPEC.by_id(f.msg_id).name  # type: ignore[union-attr]
-            if name == "identify_req":
-                self.send("identify", self.version, HZ, self.table_hash, 2)
-            elif name == "heartbeat":
-                (host_us,) = ID["heartbeat"].codec.unpack(f.payload)
-                self.send("heartbeat_ack", host_us, self.ticks() & 0xFFFF_FFFF)
-            elif name == "stats_req":
-                self.send("stats", self.decoder.stats.frames, 0, 0, 0, 0, 0, 0, 0)
+            if self.answer:
+                answer_handshake(
+                    f, self.decoder, self.send, self.ticks,
+                    board=2, version=self.version, table_hash=self.table_hash,
+                )
 
     def pwm(self) -> list[int]:
         return [

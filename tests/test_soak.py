@@ -64,7 +64,8 @@ def test_a_short_soak_under_cpu_hogs_alone_keeps_the_mcu_link() -> None:
     The MCU faults it caught in CI (`mcu_stale` with the host on time) were the SIL's pty: its
     reads and polls wait for the kernel's tty flip-buffer worker, which the hogs delay, and the
     virtual MCU's frames went out only after such a read (README, Soak: "the pty's kernel
-    worker"; tvsd.sim.virtual_mcu.VirtualMcu.write_out and _sent_times). The same worker delays
+    worker"; tvsd.sim.virtual_mcu.VirtualMcu.write_out and
+    tvsd.sim.mcu_wire.WireModel.sent_times). The same worker delays
     a real UART's input, so the host now holds PWM 0 through late but complete frames and
     latches only on a gap in the MCU's own sequence (tvsd.control.hold, "Late input is held").
     """

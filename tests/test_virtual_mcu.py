@@ -326,8 +326,8 @@ def test_a_heartbeat_split_across_two_reads_is_still_found() -> None:
         arrival = time.monotonic()
         host_us = int((arrival - 0.030) * 1e6) & 0xFFFF_FFFF
         hb, pwm = encode("heartbeat", 9, host_us=host_us), encode("pwm_set", 10, duty=5)
-        first = vm._sent_times(pwm + hb[:6], arrival)
-        second = vm._sent_times(hb[6:] + pwm, arrival)
+        first = vm._wire.sent_times(pwm + hb[:6], arrival)
+        second = vm._wire.sent_times(hb[6:] + pwm, arrival)
     assert first == [(arrival, pwm + hb[:6])]
     (t_hb, part_hb), (t_rest, rest) = second
     assert part_hb == hb[6:] and t_hb == pytest.approx(arrival - 0.030, abs=2e-6)

@@ -30,6 +30,7 @@ from conftest import wait_for
 
 from tvsd.errors import DeviceError
 from tvsd.sim import virtual_mcu as vm
+from tvsd.sim import vmcu_library
 
 ROOT = Path(__file__).resolve().parents[1]
 START_S = 180.0  # the fresh install compiles the numba kernels on first start (loaded machine)
@@ -174,8 +175,8 @@ def test_tvsd_sil_from_the_wheel_brings_the_link_up(venv: tuple[Path, Path]) -> 
 def test_a_missing_core_library_is_one_clear_line(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     """Outside a checkout, with no compiled core in the package: an error that says what and how to
     fix, and nothing is compiled."""
-    monkeypatch.setattr(vm, "FIRMWARE_DIR", tmp_path / "no-firmware")
-    monkeypatch.setattr(vm, "packaged_library", lambda: None)
+    monkeypatch.setattr(vmcu_library, "FIRMWARE_DIR", tmp_path / "no-firmware")
+    monkeypatch.setattr(vmcu_library, "packaged_library", lambda: None)
     with pytest.raises(DeviceError, match=r"no virtual MCU library .*reinstall from a wheel built") as info:
         vm.default_library()
     assert "\n" not in str(info.value)

@@ -62,7 +62,7 @@ def _mcu_io() -> dict[str, Any]:
 
 
 def _mcu_sil() -> dict[str, Any]:
-    from tvsd.sim.mcu_plant import bench_clock_sync
+    from tvsd.sim.clock_sync_bench import bench_clock_sync
 
     return bench_clock_sync()
 

@@ -25,19 +25,30 @@ A wait starts only for a heartbeat read more than watchdog − period late (37.5
 2 hogs, 30 s each). The soak (2 hogs, 50 RPC clients, the daemon): 3-8 % of the heartbeats over
 40 ms, max 236-445 ms in four 60 s runs; at G = 250 ms two were still cut (read 300-445 ms late),
 at 500 ms none (the longest wait 374 ms). A dead host is cut within watchdog + G in the SIL.
+
+Owns: the model's numbers (G, the environment overrides, :class:`WireStats` and their export) and
+its logic inside the virtual MCU (:class:`WireModel`: reading the heartbeats' send times, holding
+the cut). :class:`tvsd.sim.virtual_mcu.VirtualMcu` owns the core, the pty and the lock it calls
+:class:`WireModel` under.
 """
 
 from __future__ import annotations
 
 import bisect
 import contextlib
+import ctypes
 import json
 import math
 import os
 import threading
+import time
+import zlib
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from tvsd.hw.mcu.spec import FRAME_CRC, FRAME_HEADER, load_spec
 
 WIRE_ALLOWANCE_S = 0.500
 # For measuring, in the SIL devices' process (tvsd.sim.sil_process): another allowance (0: none,
@@ -51,6 +62,9 @@ DELAY_EDGES_MS = (
 )
 _QUANTILES = (("p50", 0.5), ("p99", 0.99), ("p999", 0.999))
 _LABELS = (*(f"<={e:g}" for e in DELAY_EDGES_MS), f">{DELAY_EDGES_MS[-1]:g}")
+# The virtual MCU's host bytes not yet in the core: (core ticks, arrival, bytes, a heartbeat alone).
+QueuedRx = Iterable[tuple[int, float, bytes, bool]]
+HB_MAX_AGE_US = 1_000_000  # a heartbeat's host_us older than this at its read: not trusted
 
 
 @dataclass
@@ -129,3 +143,135 @@ def export_stats(stats: WireStats, stop: threading.Event, period_s: float = 1.0)
     thread = threading.Thread(target=run, name="sil-wire-stats", daemon=True)
     thread.start()
     return thread
+
+
+class WireModel:
+    """The wire model inside one virtual MCU: the heartbeats' send times read from the host's
+    bytes, and the watchdog cut held at its edge while the wire may still bring one.
+
+    Owned by :class:`tvsd.sim.virtual_mcu.VirtualMcu`, which calls every method with its lock
+    held and passes in what it owns: the core's queue of host bytes not yet handed in (``(core
+    ticks, arrival, bytes, a heartbeat frame alone)``, in arrival order) and its core-seconds ->
+    host-time line. `lib` is the loaded core (tvsd.sim.vmcu_library.load_library); the counts go
+    to `stats`."""
+
+    def __init__(self, lib: ctypes.CDLL, clock_hz: int, allowance_s: float, stats: WireStats) -> None:
+        self._lib = lib
+        self.clock_hz = clock_hz
+        self.allowance_s = allowance_s
+        self.stats = stats
+        self._wd_edge, self._wd_ticks = ctypes.c_uint64(), ctypes.c_uint64()
+        self._released_edge = -1  # an edge the allowance ran out at: crossed
+        self.deferring, self._held_since = False, 0.0  # the cut waits for the wire, since (monotonic)
+        spec = load_spec()
+        hb = spec.by_name("heartbeat")
+        self.hb_head = (spec.sync, hb.size, hb.id)  # a heartbeat frame's SYNC, LEN, ID
+        self._rx_tail = b""  # the last bytes read: a heartbeat split across two reads
+
+    @property
+    def heartbeat_frame_len(self) -> int:
+        return FRAME_HEADER + self.hb_head[1] + FRAME_CRC
+
+    def reaches_edge(self, ticks: int) -> bool:
+        """Whether an advance to `ticks` must consult the model (once per advance, not per slice):
+        it is on and the cut waits, or the advance reaches the watchdog's edge."""
+        return self.allowance_s > 0 and (
+            self.deferring
+            or bool(self._lib.vmcu_watchdog(self._wd_edge, self._wd_ticks) and ticks >= self._wd_edge.value)
+        )
+
+    def heartbeat_in(self, when: int) -> bool:
+        """A heartbeat frame alone, sent at core tick `when`, goes into the core now. If the cut
+        waits and it was sent at or after the edge (the host's own gap), the cut happens first,
+        as the tick at the edge made it. True: hand it in at `when` (vmcu_rx_bytes_at: read while
+        the cut waits for it, the next edge counts from its send tick); False: at the read's
+        time, as before (the ack's mcu_ticks stays the read's, for the host's clock sync)."""
+        if (
+            self.deferring
+            and self._lib.vmcu_watchdog(self._wd_edge, self._wd_ticks)
+            and when >= self._wd_edge.value  # sent at or after the edge: the host's own gap
+        ):
+            self._end_deferral(released=False)
+            self._lib.vmcu_watchdog_check()  # the cut, as the tick at the edge made it: before it
+        return self.deferring and when >= 0
+
+    def _edge(self, rx_queue: QueuedRx, to_host: Callable[[float], float]) -> int | None:
+        """The tick from which the watchdog's cut waits for the wire, or None: its edge (the last
+        heartbeat's send tick + watchdog, moved on by the heartbeats queued before it) while the
+        wire may still bring a heartbeat sent before it. None once one sent at or after it is
+        queued (the host's own gap crossed the edge: the firmware cuts), once the allowance of
+        wall time past the edge is spent (a dead host: cut, that much late), or unarmed."""
+        if not self._lib.vmcu_watchdog(ctypes.byref(self._wd_edge), ctypes.byref(self._wd_ticks)):
+            return None
+        edge, wd = int(self._wd_edge.value), int(self._wd_ticks.value)
+        for when, _, _, heartbeat in rx_queue:
+            if heartbeat:
+                if when >= edge:
+                    return None
+                edge = when + wd
+        if edge == self._released_edge:
+            return None
+        if time.monotonic() >= to_host(edge / self.clock_hz) + self.allowance_s:
+            self._released_edge = edge
+            self.stats.cut_at_allowance += 1
+            return None
+        return edge
+
+    def defer(self, upto: int, rx_queue: QueuedRx, to_host: Callable[[float], float] | None) -> None:
+        """Whether the watchdog's cut waits while the core runs to `upto`: while it is at or past
+        the edge that the wire may still answer (_edge). The core's time, its frames and the plant
+        run on; only the cut waits. Counts the waits. `to_host` None: no line to count the
+        allowance on (a manual clock driven by hand): never waits."""
+        edge = None if self.allowance_s <= 0 or to_host is None else self._edge(rx_queue, to_host)
+        waiting = edge is not None and upto >= edge
+        if waiting == self.deferring:
+            return
+        if waiting:
+            self._lib.vmcu_watchdog_defer(1)
+            self.deferring, self._held_since = True, time.monotonic()
+            self.stats.holds += 1
+        else:  # moved on by a heartbeat sent in time; else crossed (the allowance spent: cut)
+            self._end_deferral(released=edge is not None)
+
+    def _end_deferral(self, released: bool) -> None:
+        self._lib.vmcu_watchdog_defer(0)
+        self.deferring = False
+        self.stats.hold_max_ms = max(self.stats.hold_max_ms, (time.monotonic() - self._held_since) * 1e3)
+        if released:
+            self.stats.released_by_heartbeat += 1
+
+    def sent_times(self, data: bytes, arrival: float) -> list[tuple[float, bytes]]:
+        """`data` cut after each heartbeat frame in it, each part with the time its last byte was
+        on the wire at the latest: a heartbeat's own `host_us` (CLOCK_MONOTONIC µs when the host
+        built it, mod 2**32), the rest `arrival`. Why: host bytes reach this pty through the
+        kernel's tty flip-buffer work, a normal-priority kworker, which CPU hogs delay by tens of
+        ms, so heartbeats the host wrote 12.5 ms apart were read, and went into the core, more
+        than the 50 ms watchdog apart (firmware expiries while the host's own gaps stayed
+        13-17 ms). A real UART or USB link puts the host's bytes on the wire when it writes
+        them; so does this, for the frames that say when."""
+        sync, size, hb_id = self.hb_head
+        frame = FRAME_HEADER + size + FRAME_CRC
+        buf = self._rx_tail + data
+        skip = len(self._rx_tail)
+        self._rx_tail = buf[-(frame - 1) :]
+        parts: list[tuple[float, bytes]] = []
+        start, last = 0, -math.inf
+        arrival_us = int(arrival * 1e6)
+        i = buf.find(sync)
+        while 0 <= i <= len(buf) - frame:
+            end = i + frame
+            if buf[i + 1] == size and buf[i + 4] == hb_id and end > skip:
+                body = buf[i : i + FRAME_HEADER + size]
+                if zlib.crc32(body) == int.from_bytes(buf[i + FRAME_HEADER + size : end], "little"):
+                    host_us = int.from_bytes(buf[i + FRAME_HEADER : i + FRAME_HEADER + size], "little")
+                    age_us = (arrival_us - host_us) % 2**32
+                    if age_us <= HB_MAX_AGE_US:
+                        self.stats.heartbeat(age_us * 1e-6)  # else not a time we can trust: the read's
+                        sent = max(last, arrival - age_us * 1e-6)
+                        parts.append((sent, data[start : end - skip]))
+                        start, last = end - skip, sent
+                    i = end - 1
+            i = buf.find(sync, i + 1)
+        if start < len(data):
+            parts.append((arrival, data[start:]))
+        return parts
