@@ -311,7 +311,7 @@ def bench_capture(seconds: float = 5.0) -> dict[str, float]:
     reader.run_for(seconds)
     total = time.process_time() - t0
     twin = sum(d.cpu_s for d in devices.values()) - twin0
-    budget = _bus_budget(settings)
+    budget = _bus_budget(settings, burst=reader.joint)  # what this reader sends: joint polls burst
     return {
         "capture_s": seconds,
         "cpu_s_per_s_host": (total - twin) / seconds,
