@@ -62,5 +62,6 @@ def test_frames_must_be_positive(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as e:
         main(["bench", "--only", "fuzz", "--frames", "0"])
     err = capsys.readouterr().err
-    assert e.value.code == EXIT_USAGE and "--frames: expected a whole number of frames >= 1, got '0'" in err
+    assert e.value.code == EXIT_USAGE
+    assert "--frames: expected a whole number of frames 1..1000000000, got '0'" in err
     assert "Traceback" not in err

@@ -64,21 +64,24 @@ def plan(n_null: int, reps: int, sizes: tuple[float, ...], seed: int) -> list[M.
         order += [("none", 0.0)] * k
         nulls_left -= k
     order += [("none", 0.0)] * nulls_left
-    out = []
-    for k, (cause, m) in enumerate(order):
-        g = np.random.default_rng([seed, 7, k])
-        plant = M._plant(cfg, g)
-        sigma = M.SIGMAS[k % 3]
-        text, torque = None, math.nan
-        if cause != "none":
-            text, torque = M._effects(plant, cfg.drive.u_max_v, g)[cause](m)
-        units = torque / (plant.J * sigma) if math.isfinite(torque) else math.nan
-        if cause == "colored_noise":  # the null's spectrum below the corner (matrix.coloured_sigma)
-            sigma = M.coloured_sigma(sigma, m * M.COLOUR_TAU_S)
-        p = {k2: getattr(plant, k2) for k2 in ("J", "kv", "R", "kM", "tau_c")}
-        rps = M.scan_rps(plant, cfg.drive.u_max_v)
-        out.append(M.Case(10_000 * seed + k, cause, m, units, text, "identify", sigma, p, rps))
-    return out
+    return [
+        _case(cfg, np.random.default_rng([seed, 7, k]), 10_000 * seed + k, cause, m, M.SIGMAS[k % 3])
+        for k, (cause, m) in enumerate(order)
+    ]
+
+
+def _case(cfg: Config, g: np.random.Generator, index: int, cause: str, m: float, sigma: float) -> M.Case:
+    """One closed-loop case: a plant drawn from the family, its cause at m × the base, σv."""
+    plant = M._plant(cfg, g)
+    text, torque = None, math.nan
+    if cause != "none":
+        text, torque = M._effects(plant, cfg.drive.u_max_v, g)[cause](m)
+    units = torque / (plant.J * sigma) if math.isfinite(torque) else math.nan
+    if cause == "colored_noise":  # the null's spectrum below the corner (matrix.coloured_sigma)
+        sigma = M.coloured_sigma(sigma, m * M.COLOUR_TAU_S)
+    p = {k2: getattr(plant, k2) for k2 in ("J", "kv", "R", "kM", "tau_c")}
+    rps = M.scan_rps(plant, cfg.drive.u_max_v)
+    return M.Case(index, cause, m, units, text, "identify", sigma, p, rps)
 
 
 def round_length(n_null: int, reps: int, sizes: tuple[float, ...]) -> int:
@@ -100,21 +103,10 @@ def plan_cells(reps: int, sizes: tuple[float, ...], seed: int, nulls: int = 1) -
         for j, key in enumerate([(c, m) for c in names for m in sizes] + [("none", 0.0)] * nulls):
             order.append((*key, count[key] + j))
             count[key] += 1
-    out = []
-    for k, (cause, m, i) in enumerate(order):
-        g = np.random.default_rng([seed, 13, k])
-        plant = M._plant(cfg, g)
-        sigma = M.SIGMAS[i % 3]
-        text, torque = None, math.nan
-        if cause != "none":
-            text, torque = M._effects(plant, cfg.drive.u_max_v, g)[cause](m)
-        units = torque / (plant.J * sigma) if math.isfinite(torque) else math.nan
-        if cause == "colored_noise":  # the null's spectrum below the corner (matrix.coloured_sigma)
-            sigma = M.coloured_sigma(sigma, m * M.COLOUR_TAU_S)
-        p = {k2: getattr(plant, k2) for k2 in ("J", "kv", "R", "kM", "tau_c")}
-        rps = M.scan_rps(plant, cfg.drive.u_max_v)
-        out.append(M.Case(10_000 * seed + k, cause, m, units, text, "identify", sigma, p, rps))
-    return out
+    return [
+        _case(cfg, np.random.default_rng([seed, 13, k]), 10_000 * seed + k, cause, m, M.SIGMAS[i % 3])
+        for k, (cause, m, i) in enumerate(order)
+    ]
 
 
 def case_config(case: M.Case, identify: dict[str, Any] | None = None) -> Config:

@@ -10,6 +10,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from tvsd.cli.argtypes import count
 from tvsd.cli.output import print_json, print_pairs
 from tvsd.errors import EXIT_FAILURE, EXIT_OK
 
@@ -151,21 +152,21 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     p.add_argument(
         "--nulls",
-        type=_whole(0, 100_000, "a number of null recordings 0..100000"),
+        type=count(0, 100_000, "a number of null recordings"),
         default=50,
         metavar="N",
         help="doctor: null recordings per loop (default 50; ≈ 2 s of CPU each)",
     )
     p.add_argument(
         "--reps",
-        type=_whole(0, 1000, "a number of effect cases 0..1000"),
+        type=count(0, 1000, "a number of effect cases"),
         default=3,
         metavar="N",
         help="doctor: effect cases per cause and size (default 3; 0: the nulls alone)",
     )
     p.add_argument(
         "--matrix-seed",
-        type=_whole(0, 2**31, "a seed 0..2^31"),
+        type=count(0, 2**31, "a seed"),
         default=0,
         metavar="S",
         help="doctor: the matrix's seed, both loops (default 0)",
@@ -204,25 +205,10 @@ def _words(value: Any) -> Any:
     return value
 
 
-def _whole(low: int, high: int, what: str) -> Callable[[str], int]:
-    """An argparse type: a whole number in [low, high], else one line naming what was given."""
-
-    def parse(text: str) -> int:
-        try:
-            n = int(text)
-        except ValueError:
-            n = low - 1
-        if not low <= n <= high:
-            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
-        return n
-
-    return parse
-
-
-_positive_int = _whole(1, 2**62, "a whole number of frames >= 1")
-_clients = _whole(0, 1000, "a number of clients 0..1000")
-_cases = _whole(1, 100_000, "a number of matrix cases >= 1")
-_workers = _whole(1, 256, "a number of worker processes 1..256")
+_positive_int = count(1, 10**9, "a whole number of frames")
+_clients = count(0, 1000, "a number of clients")
+_cases = count(1, 100_000, "a number of matrix cases")
+_workers = count(1, 256, "a number of worker processes")
 
 
 def _positive_float(text: str) -> float:
