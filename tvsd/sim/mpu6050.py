@@ -389,12 +389,10 @@ class SimI2CBus:
         finally:
             owed, self._owed = self._owed, None
             if self.bus_hz and owed:
-                # One sleep for the whole transfer, as the kernel's ioctl blocks once: a sleep per
-                # transaction released and retook the GIL each time, and in the SIL devices'
-                # process, beside the plant's thread, each retake waited up to a switch interval
-                # (a 21-pair FIFO read: ~6 ms of bus time took 20-40 ms). Until the transfer's
-                # end on the bus: the twins' own computing (Python, on a loaded CPU) happens
-                # within its bit time, as the chip's does, not on top of it.
+                # Simulated clock: one sleep for the whole transfer, as the kernel's ioctl blocks
+                # once (a sleep per transaction released and retook the GIL each time: a 21-pair
+                # FIFO read's ~6 ms of bus time took 20-40 ms beside the plant's thread), until
+                # the transfer's end on the bus: the twins' computing happens within its bit time.
                 self.clock.sleep(max(self._t_start + owed / self.bus_hz - self.clock.now(), 0.0))
         return out
 
