@@ -124,7 +124,6 @@ def test_a_poll_of_both_sensors_is_two_combined_transfers() -> None:
     """Once both sensors run: one I2C_RDWR with both FIFO_COUNTs, one with both FIFOs (a burst
     each) and their INT_STATUS; no other bus call."""
     _, sensors, reader = readers()
-    reader.joint = True
     reader.run_for(0.5)
     bus = sensors["pl"].driver.bus
     calls: list[str] = []

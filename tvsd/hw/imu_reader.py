@@ -405,10 +405,7 @@ class ImuReader:
         self._stop = threading.Event()
         self._lock = threading.Lock()  # status() may come from another thread than the polls
         self._thread: threading.Thread | None = None
-        # Poll all sensors together when they allow it (tvsd.hw.imu_joint). Off by default: under
-        # CPU load the joint poll's samples followed the SIL plant with coherence 0.70-0.92 (each
-        # sensor alone: 0.997; test_imu_service's SA gyro test, 3 of 6 failed beside 2 hogs).
-        self.joint = False
+        self.joint = True  # poll all sensors together when they allow it (tvsd.hw.imu_joint)
         self.joint_polls = 0
         self.joint_gap_max_s = 0.0  # count transfer's return to the FIFO transfer's start, longest
         # the thread's wake-ups after its sleeps: how late (the CPU, the GIL: not the bus)
