@@ -17,8 +17,11 @@ import pytest
 
 from tvsd.cli.imu import dominant_line, run_capture, sa_alpha
 from tvsd.hw.imu_clock import MonotonicClock
-from tvsd.hw.imu_reader import ImuReader, SensorReader
-from tvsd.hw.mpu6050 import FRAME_BYTES, GENUINE_ID, ImuSettings, Mpu6050, bus_budget
+from tvsd.hw.imu_reader import ImuReader
+from tvsd.hw.imu_sensor_reader import SensorReader
+from tvsd.hw.imu_settings import ImuSettings
+from tvsd.hw.mpu6050 import Mpu6050, bus_budget
+from tvsd.hw.mpu6050_registers import FRAME_BYTES, GENUINE_ID
 
 BUS = int(os.environ.get("TVSD_IMU_BUS", "1"))
 DEVICE = Path(f"/dev/i2c-{BUS}")

@@ -155,7 +155,7 @@ def test_points_are_made_uncompensated_until_the_mcu_clock_syncs_then_compensate
     daemon scans uncompensated, says why, and switches at the first IMU batch after the sync."""
     import numpy as np
 
-    from tvsd.hw.imu_reader import ImuBatch
+    from tvsd.hw.imu_sensor_reader import ImuBatch
 
     d = _scanning_daemon()
     d._new_scan()

@@ -11,7 +11,7 @@ from tvsd.cli.imu import run_capture
 from tvsd.errors import DataFileError
 from tvsd.hw import imu_calibration as cal
 from tvsd.hw.imu_clock import ManualClock
-from tvsd.hw.mpu6050 import ImuSettings
+from tvsd.hw.imu_settings import ImuSettings
 from tvsd.sim.imu_motion import SyntheticParams, synthetic_pair
 from tvsd.sim.mpu6050 import GYRO_NOISE_DPS_RTHZ, sil_pair
 

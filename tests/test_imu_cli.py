@@ -10,7 +10,7 @@ import pytest
 from tvsd.cli import main as cli
 from tvsd.cli.imu import dominant_line, read_samples, run_capture, sa_alpha
 from tvsd.hw.imu_clock import ManualClock
-from tvsd.hw.mpu6050 import ImuSettings
+from tvsd.hw.imu_settings import ImuSettings
 from tvsd.sim.imu_motion import ArrayMotion
 from tvsd.sim.mpu6050 import sil_pair
 

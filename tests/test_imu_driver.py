@@ -9,18 +9,14 @@ import numpy as np
 import pytest
 
 from tvsd.errors import EXIT_UNAVAILABLE, DeviceError, UsageError
-from tvsd.hw import mpu6050 as reg
+from tvsd.hw import mpu6050_registers as reg
+from tvsd.hw.angular_acceleration import AngularAccelerationStream, angular_acceleration
 from tvsd.hw.imu_clock import ManualClock
-from tvsd.hw.mpu6050 import (
-    AngularAccelerationStream,
-    ImuSettings,
-    Mpu6050,
-    angular_acceleration,
-    bus_budget,
-    to_si,
-)
+from tvsd.hw.imu_settings import ImuSettings, to_si
+from tvsd.hw.mpu6050 import Mpu6050, bus_budget
+from tvsd.sim.i2c_bus import SimI2CBus
 from tvsd.sim.imu_motion import SyntheticMotion, SyntheticParams
-from tvsd.sim.mpu6050 import SimI2CBus, SimMpu6050, decode_counter, dlpf_sos
+from tvsd.sim.mpu6050 import SimMpu6050, decode_counter, dlpf_sos
 
 
 def rig(who_am_i: int = 0x68, signal: str = "counter", **motion: float):

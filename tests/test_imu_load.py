@@ -15,11 +15,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from tvsd.hw import mpu6050 as reg
+from tvsd.hw import mpu6050_registers as reg
 from tvsd.hw.imu_clock import ManualClock
-from tvsd.hw.imu_reader import READER_PRIORITY, ImuReader, SensorReader
-from tvsd.hw.mpu6050 import ImuSettings, Mpu6050
-from tvsd.sim.mpu6050 import SimI2CBus, sil_pair
+from tvsd.hw.imu_reader import READER_PRIORITY, ImuReader
+from tvsd.hw.imu_sensor_reader import SensorReader
+from tvsd.hw.imu_settings import ImuSettings
+from tvsd.hw.mpu6050 import Mpu6050
+from tvsd.sim.i2c_bus import SimI2CBus
+from tvsd.sim.mpu6050 import sil_pair
 
 S = ImuSettings()
 

@@ -1,7 +1,7 @@
 """Property: under any fault schedule the reader survives, delivers only intact samples in order,
 and samples out = samples in - counted losses: exactly when no gap had to be estimated, else to
 the precision of the fitted sensor clock (the MPU6050 has no sample counter, so a gap's length
-comes from the clock fit; see tvsd.hw.imu_reader and SensorReader.lost).
+comes from the clock fit; see tvsd.hw.imu_sensor_reader and SensorReader.lost).
 
 "Samples in" are all the sensor took from the first delivered one to the end of the run, less
 those that can still arrive (at most a FIFO's worth since the newest delivered, no overflow, no
@@ -19,9 +19,12 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from tvsd.hw.imu_clock import ManualClock
-from tvsd.hw.imu_reader import FIFO_FRAMES, ImuReader, SensorReader
-from tvsd.hw.mpu6050 import ImuSettings, Mpu6050
-from tvsd.sim.mpu6050 import Fault, decode_counter, sil_pair
+from tvsd.hw.imu_reader import ImuReader
+from tvsd.hw.imu_sensor_reader import FIFO_FRAMES, SensorReader
+from tvsd.hw.imu_settings import ImuSettings
+from tvsd.hw.mpu6050 import Mpu6050
+from tvsd.sim.i2c_bus import Fault
+from tvsd.sim.mpu6050 import decode_counter, sil_pair
 
 S = ImuSettings()
 # power_cycle is left out: the part stops sampling while off, so there is no "sample in" to

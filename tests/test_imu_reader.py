@@ -8,12 +8,15 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from tvsd.hw import mpu6050 as reg
+from tvsd.hw import mpu6050_registers as reg
 from tvsd.hw.imu_clock import ManualClock, MonotonicClock
-from tvsd.hw.imu_reader import ImuBatch, ImuReader, SensorReader, asyncio_sink
-from tvsd.hw.mpu6050 import ImuSettings, Mpu6050
+from tvsd.hw.imu_reader import ImuReader, asyncio_sink
+from tvsd.hw.imu_sensor_reader import ImuBatch, SensorReader
+from tvsd.hw.imu_settings import ImuSettings
+from tvsd.hw.mpu6050 import Mpu6050
+from tvsd.sim.i2c_bus import Fault
 from tvsd.sim.imu_motion import SyntheticParams, synthetic_pair
-from tvsd.sim.mpu6050 import Fault, decode_counter, sil_pair
+from tvsd.sim.mpu6050 import decode_counter, sil_pair
 
 S = ImuSettings()
 

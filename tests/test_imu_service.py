@@ -23,8 +23,9 @@ from tvsd.config import load_config
 from tvsd.daemon.imu_service import ImuService
 from tvsd.errors import DeviceError, UsageError
 from tvsd.hw import imu_calibration as cal
-from tvsd.hw.imu_reader import ImuBatch
-from tvsd.hw.mpu6050 import ImuSettings, angular_acceleration
+from tvsd.hw.angular_acceleration import angular_acceleration
+from tvsd.hw.imu_sensor_reader import ImuBatch
+from tvsd.hw.imu_settings import ImuSettings
 from tvsd.sim.imu_motion import GRAVITY, PlantMotion, SyntheticParams, synthetic_pair
 from tvsd.sim.mcu_plant import PlantHistory
 from tvsd.sim.mpu6050 import GYRO_NOISE_DPS_RTHZ

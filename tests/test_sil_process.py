@@ -21,11 +21,13 @@ from test_daemon import _daemon, rpc, status, wait_status
 from tvsd.config import load_config
 from tvsd.errors import DeviceError
 from tvsd.hw import i2c_remote as wire
-from tvsd.hw import mpu6050 as reg
+from tvsd.hw import mpu6050_registers as reg
 from tvsd.hw.i2c_remote import RemoteI2CBus
 from tvsd.hw.imu_clock import ManualClock
-from tvsd.hw.mpu6050 import ImuSettings, Mpu6050
-from tvsd.sim.mpu6050 import SimI2CBus, SimMpu6050, decode_counter
+from tvsd.hw.imu_settings import ImuSettings
+from tvsd.hw.mpu6050 import Mpu6050
+from tvsd.sim.i2c_bus import SimI2CBus
+from tvsd.sim.mpu6050 import SimMpu6050, decode_counter
 from tvsd.sim.sil_devices import SilDevices
 from tvsd.sim.sil_process import SilParams
 

@@ -31,11 +31,15 @@ from tvsd.cli.output import print_json
 from tvsd.daemon.main import DEFAULT_DATA
 from tvsd.errors import EXIT_OK, DataFileError, DeviceError, UsageError
 from tvsd.hw import imu_calibration as cal
+from tvsd.hw.angular_acceleration import angular_acceleration
 from tvsd.hw.i2c_bus import open_bus
 from tvsd.hw.imu_clock import Clock, ManualClock, MonotonicClock
-from tvsd.hw.imu_reader import ImuReader, SensorReader
-from tvsd.hw.mpu6050 import DLPF_DELAY_S, SA_AXES, ImuSettings, Mpu6050, SMBusLike, angular_acceleration
+from tvsd.hw.imu_reader import ImuReader
+from tvsd.hw.imu_sensor_reader import SensorReader
+from tvsd.hw.imu_settings import SA_AXES, ImuSettings
+from tvsd.hw.mpu6050 import Mpu6050, SMBusLike
 from tvsd.hw.mpu6050 import bus_budget as _bus_budget
+from tvsd.hw.mpu6050_registers import DLPF_DELAY_S
 from tvsd.sim.mpu6050 import sil_pair
 
 NAMES = ("pl", "sa")

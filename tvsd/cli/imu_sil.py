@@ -17,9 +17,10 @@ from tvsd.cli import argtypes
 from tvsd.control.setup import Setup
 from tvsd.errors import UsageError
 from tvsd.hw.imu_clock import Clock, ManualClock, MonotonicClock
-from tvsd.hw.mpu6050 import SA_AXES, ImuSettings
+from tvsd.hw.imu_settings import SA_AXES, ImuSettings
+from tvsd.sim.i2c_bus import FAULT_KINDS, Fault, SimI2CBus
 from tvsd.sim.imu_motion import ArrayMotion, MotionSource, SyntheticParams, synthetic_pair
-from tvsd.sim.mpu6050 import FAULT_KINDS, Fault, SimI2CBus, SimMpu6050, sil_pair
+from tvsd.sim.mpu6050 import SimMpu6050, sil_pair
 
 
 def add_sil_arguments(p: argparse.ArgumentParser) -> None:

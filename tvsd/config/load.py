@@ -22,8 +22,8 @@ from tvsd.config.scanner import (
 )
 from tvsd.errors import ConfigError, UsageError
 from tvsd.hw.can.settings import CanSettings
+from tvsd.hw.imu_settings import ImuSettings
 from tvsd.hw.mcu.settings import McuSettings
-from tvsd.hw.mpu6050 import ImuSettings
 from tvsd.scan.settings import ScanSettings
 from tvsd.schema import Where, build, load_yaml, option
 

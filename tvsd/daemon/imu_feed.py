@@ -5,7 +5,7 @@ shaft's acceleration (tvsd.scan.compensation): the disturbance the SA IMU measur
 drive model's acceleration of the commanded voltage, both as cell means on a uniform grid of
 1/imu_rate_hz in MCU time, contiguous. This adapter makes that grid from what the daemon has:
 
-- the SA gyro about the shaft axis, differentiated (Savitzky–Golay, tvsd.hw.mpu6050: the same
+- the SA gyro about the shaft axis, differentiated (Savitzky–Golay, tvsd.hw.angular_acceleration: the same
   filter as offline, its rate scaled by the batch's fitted sample rate, so a sensor clock a few %
   off does not scale α) and restarted at every gap or new FIFO epoch;
 - sample times moved to MCU time by the daemon's host → MCU mapping (affine: the link's clock
@@ -32,8 +32,8 @@ from typing import Protocol
 import numpy as np
 from scipy.signal import lfilter
 
-from tvsd.hw.imu_reader import ImuBatch
-from tvsd.hw.mpu6050 import SG_HALF, AngularAccelerationStream
+from tvsd.hw.angular_acceleration import SG_HALF, AngularAccelerationStream
+from tvsd.hw.imu_sensor_reader import ImuBatch
 from tvsd.scan.compensation import DriveModel
 from tvsd.scan.points import Point
 
@@ -65,7 +65,7 @@ class ImuFeed:
         sub: int = 10,
     ) -> None:
         """`rate_hz`: the stream's grid (ScanSettings.imu_rate_hz); `axis`: the SA axis index
-        (mpu6050.SA_AXES[settings.sa_axis]); `delay_s`: the DLPF's (mpu6050.DLPF_DELAY_S);
+        (imu_settings.SA_AXES[settings.sa_axis]); `delay_s`: the DLPF's (mpu6050_registers.DLPF_DELAY_S);
         `sign`: +1 if the gyro's positive sense about that axis is the shaft's."""
         self.stream, self.to_mcu, self.voltage, self.drive = stream, to_mcu, voltage, drive
         self.dt = 1.0 / rate_hz

@@ -45,12 +45,14 @@ import numpy as np
 
 from tvsd.errors import DataFileError, DeviceError, UsageError
 from tvsd.hw import imu_calibration as cal
-from tvsd.hw import mpu6050 as reg
+from tvsd.hw import mpu6050_registers as reg
 from tvsd.hw.i2c_bus import open_bus
 from tvsd.hw.imu_clock import Clock, MonotonicClock
-from tvsd.hw.imu_reader import READER_PRIORITY, ImuBatch, ImuReader, SensorReader
+from tvsd.hw.imu_reader import READER_PRIORITY, ImuReader
+from tvsd.hw.imu_sensor_reader import ImuBatch, SensorReader
+from tvsd.hw.imu_settings import SA_AXES, ImuSettings, to_si
 from tvsd.hw.loop_handoff import LoopHandoff
-from tvsd.hw.mpu6050 import ImuSettings, Mpu6050, SMBusLike
+from tvsd.hw.mpu6050 import Mpu6050, SMBusLike
 from tvsd.sim.imu_motion import LivePlant, MotionSource
 
 if TYPE_CHECKING:
@@ -191,7 +193,7 @@ class ImuService:
         if self.plant is not None:
             # at rest below the calibration's own limit (tvsd.daemon.api: 0.05 rev/s)
             motions = plant_pair(
-                self.plant, axis=reg.SA_AXES[self.settings.sa_axis], still_below_rps=STILL_RPS
+                self.plant, axis=SA_AXES[self.settings.sa_axis], still_below_rps=STILL_RPS
             )
             twin_clock = PlantClock(self.plant)
         elif motions is None:  # at rest: gravity, the twins' noise and biases
@@ -435,7 +437,7 @@ class ImuService:
         """Off the loop's thread: SI units, the motion check and bias, the file."""
         result = {}
         for name, frames in raw.items():
-            accel, gyro = reg.to_si(frames, self.settings)  # raw: no bias removed
+            accel, gyro = to_si(frames, self.settings)  # raw: no bias removed
             result[name] = cal.calibrate_sensor(name, accel, gyro, chips.get(name, ""))
         path = self.settings.calibration_file
         try:
@@ -461,7 +463,7 @@ class ImuService:
             raise UsageError(f"inject {kind!r} {sensor!r}: kind one of {INJECT_KINDS}, sensor pl, sa or none")
         if self.bus is None:
             raise DeviceError("cannot inject an IMU fault: the IMU is not running")
-        from tvsd.sim.mpu6050 import Fault, SimI2CBus
+        from tvsd.sim.i2c_bus import Fault, SimI2CBus
 
         tell = getattr(self.plant, "imu_fault", None)
         if tell is not None:  # the twins in the SIL devices' process: told, not waited for

@@ -20,7 +20,8 @@ import numpy as np
 from tvsd.config import Config
 from tvsd.daemon.imu_feed import ImuFeed
 from tvsd.daemon.status import PointsStatus
-from tvsd.hw.mpu6050 import DLPF_DELAY_S, SA_AXES
+from tvsd.hw.imu_settings import SA_AXES
+from tvsd.hw.mpu6050_registers import DLPF_DELAY_S
 from tvsd.scan.compensation import DriveModel
 from tvsd.scan.points import FLAG_NO_IMU, Point
 from tvsd.scan.stream import PointStream
@@ -71,7 +72,7 @@ class ScanSession:
         return self.stream.add_pulse(channel, mcu_ticks)
 
     def imu_batch(self, batch: Any) -> list[Point]:
-        """One IMU reader batch (tvsd.hw.imu_reader.ImuBatch); the points it completes."""
+        """One IMU reader batch (tvsd.hw.imu_sensor_reader.ImuBatch); the points it completes."""
         return self.feed.push(batch) if self.feed is not None else []
 
 

@@ -1,13 +1,14 @@
 """Opening the real I2C bus (smbus2), with the advice a user needs when it is not there.
 
 The daemon's IMU service and `tvsctl imu` both open the bus here; the simulated bus
-(tvsd.sim.mpu6050.SimI2CBus) stands behind the same SMBus-like interface.
+(tvsd.sim.i2c_bus.SimI2CBus) stands behind the same SMBus-like interface.
 """
 
 from __future__ import annotations
 
 from tvsd.errors import DeviceError
-from tvsd.hw.mpu6050 import ImuSettings, SMBusLike
+from tvsd.hw.imu_settings import ImuSettings
+from tvsd.hw.mpu6050 import SMBusLike
 
 
 def open_bus(settings: ImuSettings) -> SMBusLike:

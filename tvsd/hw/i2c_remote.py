@@ -181,7 +181,7 @@ def serve(sock: socket.socket, handle: Handler) -> None:
 
 
 class BusHandler:
-    """The server side over an SMBus-like object with i2c_rdwr-style pairs (tvsd.sim.mpu6050.SimI2CBus)."""
+    """The server side over an SMBus-like object with i2c_rdwr-style pairs (tvsd.sim.i2c_bus.SimI2CBus)."""
 
     def __init__(self, bus: Any) -> None:
         self.bus = bus

@@ -15,7 +15,7 @@ message (u: 63 % → 55 %: 9 bits a byte, no header per 24 bytes):
 2. one I2C_RDWR with, per sensor, a burst read of FIFO_R_W for the whole frames counted (the
    register does not auto-increment: a burst read pops the FIFO byte after byte, as the Linux
    inv_mpu6050 driver reads it) and INT_STATUS after it (the overflow check of
-   tvsd.hw.imu_reader, which clears it).
+   tvsd.hw.imu_sensor_reader, which clears it).
 Same transactions on the wire, per sensor, as tvsd.hw.mpu6050.Mpu6050's own poll; the policy
 (alignment, epochs, overflow = every frame of that read discarded and counted lost) is the
 SensorReader's. Used when every sensor's next poll is a plain one (SensorReader.plain) and the
@@ -33,11 +33,12 @@ import numpy as np
 from smbus2 import i2c_msg
 
 from tvsd.errors import DeviceError
-from tvsd.hw import mpu6050 as reg
+from tvsd.hw import mpu6050_registers as reg
 from tvsd.hw.mpu6050 import Mpu6050
 
 if TYPE_CHECKING:
-    from tvsd.hw.imu_reader import ImuReader, SensorReader
+    from tvsd.hw.imu_reader import ImuReader
+    from tvsd.hw.imu_sensor_reader import SensorReader
 
 MAX_BURST = reg.FIFO_SIZE // reg.FRAME_BYTES  # 85 frames: 1020 bytes, under i2c-dev's 8192 a message
 # A FIFO_COUNT read on the wire: start, address, register, restart, address, 2 bytes (9 bits

@@ -11,6 +11,8 @@ bytes — two sensors at 1 kHz use ~63 % of a 400 kHz bus. Both sensors polled t
 (tvsd.hw.imu_joint, the reader's normal case on an adapter with ``i2c_rdwr``) read each FIFO in
 one burst: ~55 % (see :func:`bus_budget`). A 100 kHz bus is too slow either way and
 hil/README.md says to raise it.
+
+Registers and chip facts: mpu6050_registers.py; the settings: imu_settings.py.
 """
 
 from __future__ import annotations
@@ -18,58 +20,50 @@ from __future__ import annotations
 import errno as _errno
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 from smbus2 import i2c_msg
 
 from tvsd.errors import DeviceError
-from tvsd.schema import FieldError, check, option
-
-# Registers (Register Map rev 4.2).
-SELF_TEST_X, SELF_TEST_Y, SELF_TEST_Z, SELF_TEST_A = 0x0D, 0x0E, 0x0F, 0x10
-SMPLRT_DIV, CONFIG, GYRO_CONFIG, ACCEL_CONFIG = 0x19, 0x1A, 0x1B, 0x1C
-FIFO_EN, INT_ENABLE, INT_STATUS = 0x23, 0x38, 0x3A
-ACCEL_XOUT_H = 0x3B  # 14 bytes: accel xyz, temperature, gyro xyz
-SIGNAL_PATH_RESET, USER_CTRL, PWR_MGMT_1 = 0x68, 0x6A, 0x6B
-FIFO_COUNT_H, FIFO_R_W, WHO_AM_I = 0x72, 0x74, 0x75
-
-PWR_RESET, PWR_SLEEP, CLKSEL_PLL_GYRO_X = 0x80, 0x40, 0x01
-USER_FIFO_EN, USER_FIFO_RESET = 0x40, 0x04
-FIFO_EN_GYRO_ACCEL = 0x78  # XG_FIFO_EN | YG_FIFO_EN | ZG_FIFO_EN | ACCEL_FIFO_EN
-INT_FIFO_OFLOW = 0x10  # FIFO_OFLOW_INT / FIFO_OFLOW_EN, bit 4
-SELF_TEST_BITS = 0xE0  # XA/YA/ZA_ST or XG/YG/ZG_ST, bits 7..5
-
-FIFO_SIZE = 1024
-FRAME_BYTES = 12  # accel xyz + gyro xyz, int16 big-endian
-FRAMES_PER_READ = 2  # 24 bytes <= the 32-byte SMBus block limit, whole frames only
-RDWR_PAIRS = 21  # block reads per combined transfer: 42 messages, the kernel's I2C_RDWR limit
-RESET_S = 0.1  # a device reset takes up to 100 ms
-GYRO_STARTUP_S = 0.03  # gyro start-up time, 30 ms typical
-GRAVITY = 9.80665  # m/s^2, the standard g the datasheet's LSB/g refers to
-
-# WHO_AM_I values seen on boards sold as "MPU6050"; the register map is compatible for what
-# this driver uses (FIFO, ranges, DLPF). Self-test formulas are the MPU6050's only.
-KNOWN_CHIPS: dict[int, str] = {
-    0x68: "MPU-6050/6000",
-    0x70: "MPU-6500 (sold as MPU6050)",
-    0x71: "MPU-9250",
-    0x72: "MPU-6050 clone (id 0x72)",
-    0x73: "MPU-9255",
-    0x98: "MPU-6050 clone (id 0x98)",
-    0x19: "MPU-6886",
-}
-GENUINE_ID = 0x68
-
-GYRO_FS_DPS = (250, 500, 1000, 2000)  # FS_SEL 0..3, 131 / 65.5 / 32.8 / 16.4 LSB per deg/s
-ACCEL_FS_G = (2, 4, 8, 16)  # AFS_SEL 0..3, 16384 / 8192 / 4096 / 2048 LSB per g
-# DLPF_CFG 1..6: gyro bandwidth (Hz) and delay (s); the gyro output rate is 1 kHz for all of them.
-DLPF_GYRO_BW_HZ = {1: 188.0, 2: 98.0, 3: 42.0, 4: 20.0, 5: 10.0, 6: 5.0}
-DLPF_DELAY_S = {1: 1.9e-3, 2: 2.8e-3, 3: 4.8e-3, 4: 8.3e-3, 5: 13.4e-3, 6: 18.6e-3}
-GYRO_OUTPUT_RATE_HZ = 1000.0  # with the DLPF on (DLPF_CFG 1..6)
-SA_AXES = {"x": 0, "y": 1, "z": 2}
-SG_HALF = 5  # the differentiator's half window: 11 samples
+from tvsd.hw.imu_settings import ImuSettings
+from tvsd.hw.mpu6050_registers import (
+    ACCEL_CONFIG,
+    ACCEL_FS_G,
+    ACCEL_XOUT_H,
+    CLKSEL_PLL_GYRO_X,
+    CONFIG,
+    FIFO_COUNT_H,
+    FIFO_EN,
+    FIFO_EN_GYRO_ACCEL,
+    FIFO_R_W,
+    FRAME_BYTES,
+    FRAMES_PER_READ,
+    GENUINE_ID,
+    GYRO_CONFIG,
+    GYRO_FS_DPS,
+    GYRO_STARTUP_S,
+    INT_ENABLE,
+    INT_FIFO_OFLOW,
+    INT_STATUS,
+    KNOWN_CHIPS,
+    PWR_MGMT_1,
+    PWR_RESET,
+    PWR_SLEEP,
+    RDWR_PAIRS,
+    RESET_S,
+    SELF_TEST_A,
+    SELF_TEST_BITS,
+    SELF_TEST_X,
+    SELF_TEST_Y,
+    SELF_TEST_Z,
+    SIGNAL_PATH_RESET,
+    SMPLRT_DIV,
+    USER_CTRL,
+    USER_FIFO_EN,
+    USER_FIFO_RESET,
+    WHO_AM_I,
+)
 
 
 class SMBusLike(Protocol):
@@ -86,135 +80,6 @@ class SMBusLike(Protocol):
     ) -> list[int]: ...
 
     def close(self) -> None: ...
-
-
-@dataclass(frozen=True, kw_only=True)
-class ImuSettings:
-    """The two MPU6050s: the `imu:` config section, and the driver's settings.
-
-    Each key has its rule (`option`); `__post_init__` adds the chip's own (rates the sample-rate
-    divider can make, ranges the chip has, the DLPF against the rate), so the rules hold however
-    the settings are made: from the config file (errors at the key's line), the command line, a test.
-    """
-
-    bus: int = option(1, doc="I2C bus number (/dev/i2c-N)", ge=0)
-    address_pl: int = option(0x68, doc="PL sensor address (AD0 low)", ge=0, le=0x7F)
-    address_sa: int = option(0x69, doc="SA sensor address (AD0 high)", ge=0, le=0x7F)
-    sample_rate_hz: float = option(1000.0, doc="FIFO rate (MODEL-NOTES §4: ≥ 1 kHz)", unit="Hz", gt=0)
-    # 188 Hz: passes the 15-25 Hz lines and structural modes to ~150 Hz
-    dlpf_cfg: int = option(1, doc="digital low-pass setting 1..6 (1: 188 Hz)", ge=0, le=7)
-    # finest LSB; vibration rates here are a few deg/s
-    gyro_fs_dps: int = option(250, doc="gyro full scale", unit="°/s", gt=0)
-    # real MPU6050 records on motors clip at +-2 g (data/real): headroom
-    accel_fs_g: int = option(4, doc="accelerometer full scale", unit="g", gt=0)
-    sa_axis: str = option("x", doc="sensor axis along the SA shaft", choices=tuple(SA_AXES))
-    calibration_file: Path = option(Path("/var/lib/tvsd/imu-calibration.json"), doc="bias calibration file")
-    # 20 frames per poll at 1 kHz; the FIFO holds 85 (85 ms), so 50 ms leaves margin
-    poll_interval_s: float = option(0.02, doc="FIFO poll period", unit="s", ge=0.001, le=0.05)
-    calibrate_max_s: float = option(
-        60.0, doc="a bias calibration at rest takes at most this long", unit="s", gt=0, le=3600
-    )
-    lost_margin_s: float = option(
-        0.1, doc="a sensor is lost after 5 poll periods and this long without a sample", unit="s", gt=0
-    )
-
-    def __post_init__(self) -> None:
-        check(self)
-        for key in ("address_pl", "address_sa"):
-            if getattr(self, key) not in (0x68, 0x69):
-                got = getattr(self, key)
-                raise FieldError(key, f"must be 0x68 (AD0 low) or 0x69 (AD0 high), got {got:#x}")
-        if self.address_pl == self.address_sa:
-            raise FieldError("address_sa", "pl and sa share one address; tie AD0 high on one")
-        if self.dlpf_cfg not in DLPF_GYRO_BW_HZ:
-            raise FieldError(
-                "dlpf_cfg",
-                f"must be 1..6, got {self.dlpf_cfg!r}: 0 and 7 switch the DLPF off "
-                "(8 kHz gyro, 1 kHz accelerometer, no anti-alias filter)",
-            )
-        rate = self.sample_rate_hz
-        divider = GYRO_OUTPUT_RATE_HZ / rate - 1.0
-        if abs(divider - round(divider)) > 1e-3 or not 0 <= round(divider) < 256:
-            raise FieldError(
-                "sample_rate_hz",
-                "must be 1000/(1+d) Hz for an integer d in 0..255 "
-                f"(1000, 500, 333.33..., 250 ...; 1000 is the scanner's rate), got {rate!r}",
-            )
-        bandwidth = DLPF_GYRO_BW_HZ[self.dlpf_cfg]
-        if rate < 2.5 * bandwidth:  # Nyquist with margin for the DLPF's roll-off
-            raise FieldError(
-                "sample_rate_hz",
-                f"{rate:g} Hz aliases the DLPF's {bandwidth:g} Hz band: raise the rate to >= "
-                f"{2.5 * bandwidth:g} Hz or raise imu.dlpf_cfg",
-            )
-        if self.gyro_fs_dps not in GYRO_FS_DPS:
-            raise FieldError("gyro_fs_dps", f"must be one of {GYRO_FS_DPS}, got {self.gyro_fs_dps!r}")
-        if self.accel_fs_g not in ACCEL_FS_G:
-            raise FieldError("accel_fs_g", f"must be one of {ACCEL_FS_G}, got {self.accel_fs_g!r}")
-
-    @property
-    def addresses(self) -> dict[str, int]:
-        """The I2C address of each sensor, by name ("pl", "sa")."""
-        return {"pl": self.address_pl, "sa": self.address_sa}
-
-    @property
-    def smplrt_div(self) -> int:
-        return round(GYRO_OUTPUT_RATE_HZ / self.sample_rate_hz) - 1
-
-    @property
-    def gyro_lsb_to_rad_s(self) -> float:
-        return self.gyro_fs_dps / 32768.0 * np.pi / 180.0
-
-    @property
-    def accel_lsb_to_m_s2(self) -> float:
-        return self.accel_fs_g / 32768.0 * GRAVITY
-
-
-def to_si(raw: np.ndarray, settings: ImuSettings) -> tuple[np.ndarray, np.ndarray]:
-    """(n, 6) int16 frames -> accel (n, 3) m/s^2 and gyro (n, 3) rad/s."""
-    raw = np.asarray(raw, dtype=np.float64).reshape(-1, 6)
-    return raw[:, :3] * settings.accel_lsb_to_m_s2, raw[:, 3:] * settings.gyro_lsb_to_rad_s
-
-
-def angular_acceleration(rate_rad_s: np.ndarray, fs_hz: float) -> np.ndarray:
-    """d/dt of an angular rate sampled at fs_hz: the SA axis's angular acceleration (Δv).
-
-    Savitzky-Golay derivative, cubic over 11 samples: exact for polynomials up to degree 3; at
-    1 kHz its gain is within 0.1 % of the ideal jω at 25 Hz (the rotation lines), 1.4 % low at
-    50 Hz, -1.7 dB at 100 Hz, and <= 0.13 of jω from 250 Hz up, where the sensor's noise is all
-    that is left (a central difference keeps 0.64 at 250 Hz).
-    """
-    x = np.asarray(rate_rad_s, dtype=np.float64)
-    n = 2 * SG_HALF + 1
-    if x.size < n:
-        return np.gradient(x) * fs_hz if x.size > 1 else np.zeros_like(x)
-    from scipy.signal import savgol_filter  # here: the settings are loaded with every config
-
-    return np.asarray(savgol_filter(x, n, 3, deriv=1, delta=1.0 / fs_hz, mode="interp"))
-
-
-class AngularAccelerationStream:
-    """angular_acceleration() for a stream of batches: same coefficients, output delayed by
-    SG_HALF samples (a centred filter needs the samples after), state kept between batches.
-    Reset it at a gap (a new epoch): differentiating across lost samples is meaningless."""
-
-    def __init__(self, fs_hz: float) -> None:
-        from scipy.signal import savgol_coeffs
-
-        # convolution taps: savgol_coeffs gives them for np.convolve's orientation (use="conv")
-        self._taps = savgol_coeffs(2 * SG_HALF + 1, 3, deriv=1, delta=1.0 / fs_hz, use="conv")
-        self._tail = np.zeros(0)
-
-    def reset(self) -> None:
-        self._tail = np.zeros(0)
-
-    def push(self, rate_rad_s: np.ndarray) -> np.ndarray:
-        """α for the samples from SG_HALF before this batch's first one (as far as known)."""
-        x = np.concatenate([self._tail, np.asarray(rate_rad_s, dtype=np.float64)])
-        self._tail = x[-2 * SG_HALF :]
-        if x.size < 2 * SG_HALF + 1:
-            return np.zeros(0)
-        return np.convolve(x, self._taps, mode="valid")
 
 
 def bus_budget(

@@ -1,40 +1,30 @@
-"""Simulated MPU6050s on a simulated I2C bus: the driver's twin at the register level.
+"""Simulated MPU6050s: the driver's twin at the register level.
 
-SimI2CBus offers the smbus2.SMBus calls the driver makes (read_byte_data, write_byte_data,
-read_i2c_block_data, i2c_rdwr, close) and fails the way the kernel does, with OSError(errno). Each
-SimMpu6050 keeps a register map and a 1024-byte FIFO filled, on every access, with the samples its
-own clock (nominal rate times 1 + rate_error: these oscillators run a few % off) produced since the
-last access. The time comes from a Clock: a ManualClock runs faster than real time (and the bus
-charges each transaction's bit time to it), a MonotonicClock runs in real time.
+Each SimMpu6050 keeps a register map and a 1024-byte FIFO filled, on every access, with the
+samples its own clock (nominal rate times 1 + rate_error: these oscillators run a few % off)
+produced since the last access. The time comes from a Clock: a ManualClock runs faster than real
+time (and the bus, tvsd.sim.i2c_bus.SimI2CBus, charges each transaction's bit time to it), a
+MonotonicClock runs in real time. sil_pair puts the scanner's two on one simulated bus.
 
 Signals: "motion" samples a MotionSource through a DLPF model (`dlpf_sos`: the datasheet's
 bandwidth and delay), adds the datasheet's noise and a bias, and quantizes to int16 at the
 configured range (clipping like the chip). "counter" puts a running sample number and a check
 word in each frame, so tests can see exactly which samples the driver delivered, lost, or
 misaligned.
-
-Faults (Fault, scheduled in simulated time, per address or for all): "nack" (ENXIO), "eio" (EIO),
-"partial" (FIFO reads pop 1..n-1 bytes, then fail with EIO; other transfers pass), "stall" (each
-transaction hangs for stall_s, then ETIMEDOUT), "disconnect" (ENXIO, the sensor keeps sampling),
-"power_cycle" (ENXIO, then the sensor comes back reset and asleep). Also `error_rate` (random EIO)
-and a wrong WHO_AM_I (the `who_am_i` argument).
 """
 
 from __future__ import annotations
 
-import ctypes
-import errno
-import os
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from scipy.signal import butter, group_delay, sos2tf, sosfilt, sosfilt_zi
 
-from tvsd.hw import mpu6050 as reg
-from tvsd.hw.imu_clock import Clock, ManualClock
+from tvsd.hw import mpu6050_registers as reg
+from tvsd.hw.imu_clock import Clock
+from tvsd.hw.imu_settings import ImuSettings
+from tvsd.sim.i2c_bus import SimI2CBus
 from tvsd.sim.imu_motion import MotionSource
 
 GYRO_NOISE_DPS_RTHZ = 0.005  # rate noise spectral density (datasheet)
@@ -42,7 +32,6 @@ ACCEL_NOISE_G_RTHZ = 400e-6  # power spectral density (datasheet)
 # Self-test codes of this simulated part; the response equals the factory trim times 1 + error.
 ST_GYRO_CODES = (14, 17, 12)
 ST_ACCEL_CODES = (16, 15, 18)
-FAULT_KINDS = ("nack", "eio", "partial", "stall", "disconnect", "power_cycle")
 
 
 def dlpf_sos(dlpf_cfg: int, rate_hz: float) -> np.ndarray:
@@ -245,199 +234,8 @@ class SimMpu6050:
             self._restart_clock()
 
 
-@dataclass(frozen=True)
-class Fault:
-    """A fault active on [start, end) in bus time, for one address or (None) every address."""
-
-    kind: str
-    start: float
-    end: float
-    address: int | None = None
-    op: str = "any"  # "read", "write" or "any" transfers
-
-    def __post_init__(self) -> None:
-        if self.kind not in FAULT_KINDS or self.end < self.start:
-            raise ValueError(f"bad fault {self}: kind one of {FAULT_KINDS}, end >= start")
-        if self.op not in ("any", "read", "write"):
-            raise ValueError(f"bad fault {self}: op is read, write or any")
-
-
-class SimI2CBus:
-    """The smbus2.SMBus subset the driver uses, over simulated devices, with fault injection."""
-
-    def __init__(
-        self,
-        clock: Clock,
-        devices: dict[int, SimMpu6050],
-        bus_hz: float | None = 400e3,
-        error_rate: float = 0.0,
-        stall_s: float = 0.05,
-        seed: int = 0,
-    ) -> None:
-        self.clock, self.devices, self.bus_hz = clock, devices, bus_hz
-        self.error_rate, self.stall_s = error_rate, stall_s
-        self.faults: list[Fault] = []
-        self._rng = np.random.default_rng(seed)
-        self._cycled: set[tuple[int, float]] = set()
-        self.transactions = 0
-        self.errors = 0
-        self.bits = 0
-        self.closed = False
-        self._owed: int | None = None  # bits of the combined transfer in progress, not yet slept
-        self._t_start = 0.0  # when that transfer began
-        self._msg_now = 0.0  # the devices' time for the message in progress
-        self._manual = isinstance(clock, ManualClock)
-
-    def _transaction(self, addr: int, nbytes: int, register: int, write: bool) -> str | None:
-        """Charge bus time, apply faults; returns 'partial' when a FIFO read must half-happen."""
-        if self.closed:
-            raise OSError(errno.EBADF, os.strerror(errno.EBADF))
-        self.transactions += 1
-        header = 18 if write else 27  # start, address, register (+ restart, address)
-        bits = header + 9 * nbytes + 2
-        self.bits += bits
-        if self._owed is not None:  # inside a combined transfer: slept once at its end
-            self._owed += header
-            now = self._msg_now = self._device_now()  # its data phase begins
-            self._owed += bits - header
-        else:
-            if self.bus_hz:
-                self.clock.sleep(bits / self.bus_hz)
-            now = self._msg_now = self.clock.now()
-        result = None
-        for f in self.faults:
-            if f.address not in (None, addr) or (f.op != "any" and (f.op == "write") != write):
-                continue
-            if f.kind == "power_cycle" and now >= f.end and (addr, f.start) not in self._cycled:
-                if now >= f.start and addr in self.devices:
-                    self._cycled.add((addr, f.start))
-                    self.devices[addr].hard_reset()
-                continue
-            if not f.start <= now < f.end:
-                continue
-            if f.kind == "stall":
-                self.clock.sleep(self.stall_s)
-                self._raise(errno.ETIMEDOUT)
-            if f.kind in ("nack", "disconnect", "power_cycle"):
-                self._raise(errno.ENXIO)
-            if f.kind == "eio":
-                self._raise(errno.EIO)
-            if f.kind == "partial" and not write and register == reg.FIFO_R_W:
-                result = "partial"
-        if addr not in self.devices:
-            self._raise(errno.ENXIO)
-        if self.error_rate and self._rng.random() < self.error_rate:
-            self._raise(errno.EIO)
-        return result
-
-    def _device_now(self) -> float:
-        """The time the devices see. Inside a combined transfer on a simulated clock (slept
-        once at the end): its start plus the bits clocked until the message's data phase (a
-        count latched then, a burst popping from then on: new frames join behind what it
-        pops), each message after the one before, as on the wire. On a real-time clock the
-        time itself: the twins must not sample a plant's future."""
-        if self._owed is not None and self._manual and self.bus_hz:
-            return self._t_start + self._owed / self.bus_hz
-        return self.clock.now()
-
-    def _raise(self, code: int) -> None:
-        self.errors += 1
-        raise OSError(code, os.strerror(code))
-
-    def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
-        self._transaction(i2c_addr, 1, register, write=False)
-        return self.devices[i2c_addr].read(register, 1, now=self._msg_now)[0]
-
-    def write_byte_data(self, i2c_addr: int, register: int, value: int, force: bool | None = None) -> None:
-        self._transaction(i2c_addr, 1, register, write=True)
-        self.devices[i2c_addr].write(register, value, now=self._msg_now)
-
-    def read_i2c_block_data(
-        self, i2c_addr: int, register: int, length: int, force: bool | None = None
-    ) -> list[int]:
-        if not 0 < length <= 32:  # the smbus2 / SMBus limit
-            raise ValueError("Desired block length over 32 bytes")
-        partial = self._transaction(i2c_addr, length, register, write=False) == "partial"
-        data = self.devices[i2c_addr].read(register, length, partial=partial)
-        if partial:
-            self._raise(errno.EIO)
-        return data
-
-    def transfer(self, msgs: list[tuple[int, bool, int, bytes]]) -> list[int]:
-        """A combined transfer (one I2C_RDWR ioctl): messages (addr, read, length, written
-        bytes), each pair [register] + read n one block read's transaction, [register, value] a
-        byte write. The read messages' bytes, in order; a failing message fails the whole, as
-        the kernel then copies nothing back (what the earlier reads popped is gone)."""
-        out: list[int] = []
-        if self.bus_hz and not self._manual:
-            # Real time: the whole bit time first, then every message's data phase (one sleep,
-            # one GIL retake). A count latched at the start and slept after made the reader's
-            # count times loose by the sleep and the GIL's retake after it (ms under load): its
-            # clock fit (a lower envelope of t - K/rate over the last 100 reads) then stepped by
-            # ms as tight reads aged out (SIL coherence with the plant 0.94-0.98, not > 0.98).
-            # Here a count is latched just before the reply, as the single-message reads do.
-            self.clock.sleep(_transfer_bits(msgs) / self.bus_hz)
-            self._owed = 0  # inside a combined transfer: no sleep per message
-            try:
-                self._messages(msgs, out)
-            finally:
-                self._owed = None
-            return out
-        self._owed, self._t_start = 0, self.clock.now()
-        try:
-            self._messages(msgs, out)
-        finally:
-            owed, self._owed = self._owed, None
-            if self.bus_hz and owed:
-                # Simulated clock: one sleep for the whole transfer, as the kernel's ioctl blocks
-                # once (a sleep per transaction released and retook the GIL each time: a 21-pair
-                # FIFO read's ~6 ms of bus time took 20-40 ms beside the plant's thread), until
-                # the transfer's end on the bus: the twins' computing happens within its bit time.
-                self.clock.sleep(max(self._t_start + owed / self.bus_hz - self.clock.now(), 0.0))
-        return out
-
-    def _messages(self, msgs: list[tuple[int, bool, int, bytes]], out: list[int]) -> None:
-        i = 0
-        while i < len(msgs):
-            addr, read, n, data = msgs[i]
-            if not read and n == 2:
-                self.write_byte_data(addr, data[0], data[1])
-                i += 1
-            elif not read and n == 1 and i + 1 < len(msgs) and msgs[i + 1][1] and msgs[i + 1][0] == addr:
-                length = msgs[i + 1][2]
-                if not 0 < length <= reg.FIFO_SIZE:
-                    raise ValueError(f"read of {length} bytes")
-                partial = self._transaction(addr, length, data[0], write=False) == "partial"
-                out += self.devices[addr].read(data[0], length, partial=partial, now=self._msg_now)
-                if partial:
-                    self._raise(errno.EIO)
-                i += 2
-            else:
-                raise ValueError("i2c_rdwr: only [register] + read and [register, value] messages")
-
-    def i2c_rdwr(self, *msgs: Any) -> None:
-        """smbus2.SMBus.i2c_rdwr over the twins: smbus2.i2c_msg messages, read buffers filled."""
-        from tvsd.hw.i2c_remote import I2C_M_RD, rdwr_messages
-
-        data = bytes(self.transfer(rdwr_messages(msgs)))
-        at = 0
-        for m in msgs:
-            if m.flags & I2C_M_RD:
-                ctypes.memmove(m.buf, data[at : at + m.len], m.len)
-                at += m.len
-
-    def close(self) -> None:
-        self.closed = True
-
-
-def _transfer_bits(msgs: list[tuple[int, bool, int, bytes]]) -> int:
-    """A combined transfer's bits on the wire, as SimI2CBus._transaction charges them: a
-    [register] + read pair is one block read (27 + 9n + 2), [register, value] a byte write."""
-    return sum(27 + 9 * n + 2 if read else 18 + 9 + 2 if n == 2 else 0 for _, read, n, _ in msgs)
-
-
 def sil_pair(
-    settings: reg.ImuSettings,
+    settings: ImuSettings,
     clock: Clock,
     motions: Mapping[str, MotionSource] | None = None,
     signal: str = "motion",

@@ -78,8 +78,8 @@ class Devices:
     """The plant (or None), the twins' bus and the faults injected into it."""
 
     def __init__(self, p: SilParams) -> None:
-        from tvsd.hw import mpu6050 as reg
         from tvsd.hw.imu_clock import Clock, MonotonicClock
+        from tvsd.hw.imu_settings import SA_AXES
         from tvsd.sim.imu_motion import PlantClock, SyntheticParams, plant_pair, synthetic_pair
         from tvsd.sim.mcu_plant import McuPlant
         from tvsd.sim.mcu_wire import allowance_from_env, export_stats
@@ -101,7 +101,7 @@ class Devices:
             plant.step()  # loads the plant kernel before the pacing starts
             plant.start()
             motions: Any = plant_pair(
-                plant, axis=reg.SA_AXES[cfg.imu.sa_axis], still_below_rps=p.still_below_rps
+                plant, axis=SA_AXES[cfg.imu.sa_axis], still_below_rps=p.still_below_rps
             )
             clock = PlantClock(plant)
         else:  # at rest: gravity, the twins' noise and biases
@@ -121,7 +121,7 @@ class Devices:
         return plant._error or RuntimeError("the plant's thread ended")
 
     def imu_fault(self, kind: str, address: int | None) -> None:
-        from tvsd.sim.mpu6050 import Fault
+        from tvsd.sim.i2c_bus import Fault
 
         bus = self.bus
         if kind == "loss":
