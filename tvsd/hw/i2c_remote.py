@@ -130,12 +130,7 @@ class RemoteI2CBus:
             parts.append(MESSAGE.pack(m.addr & 0x7F, int(read), m.len))
             if not read:
                 parts.append(ctypes.string_at(m.buf, m.len))
-        data = self._call(OP_RDWR, b"".join(parts))
-        at = 0
-        for m in msgs:
-            if m.flags & I2C_M_RD:
-                ctypes.memmove(m.buf, data[at : at + m.len], m.len)
-                at += m.len
+        fill_reads(msgs, self._call(OP_RDWR, b"".join(parts)))
 
     def close(self) -> None:
         if not self.closed:
@@ -214,3 +209,12 @@ def rdwr_messages(msgs: Sequence[Any]) -> list[tuple[int, bool, int, bytes]]:
         )
         for m in msgs
     ]
+
+
+def fill_reads(msgs: Sequence[Any], data: bytes) -> None:
+    """A combined transfer's reply into its read messages' buffers, in order, as the ioctl fills them."""
+    at = 0
+    for m in msgs:
+        if m.flags & I2C_M_RD:
+            ctypes.memmove(m.buf, data[at : at + m.len], m.len)
+            at += m.len

@@ -49,6 +49,8 @@ FIFO_FRAMES = reg.FIFO_SIZE // reg.FRAME_BYTES  # 85: more samples than this unr
 
 @dataclass(frozen=True)
 class ImuBatch:
+    """One sensor's newly confirmed samples of one epoch (SensorReader.poll, ImuReader's callback)."""
+
     sensor: str
     k: np.ndarray  # sample numbers (int64); a jump is a counted loss
     epoch: int

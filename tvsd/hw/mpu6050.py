@@ -67,7 +67,8 @@ from tvsd.hw.mpu6050_registers import (
 
 
 class SMBusLike(Protocol):
-    """The smbus2.SMBus calls this driver makes; the simulated twin offers the same."""
+    """The smbus2.SMBus calls this driver makes; the twins' bus (tvsd.sim.i2c_bus) and the remote
+    one (tvsd.hw.i2c_remote) offer the same."""
 
     def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int: ...
 
@@ -124,7 +125,7 @@ class SelfTestResult:
 
 
 class Mpu6050:
-    """One MPU6050 on a bus. Mechanism only: the reader (imu_reader.py) decides the policy.
+    """One MPU6050 on a bus. Mechanism only: the policy is the sensor reader's (imu_sensor_reader.py).
 
     Every bus failure is raised as DeviceError naming bus, address and sensor, with the kernel's
     errno kept in ``.errno`` and the OSError chained.

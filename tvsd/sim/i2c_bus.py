@@ -14,7 +14,6 @@ and a wrong WHO_AM_I (the `who_am_i` argument).
 
 from __future__ import annotations
 
-import ctypes
 import errno
 import os
 from collections.abc import Mapping
@@ -213,14 +212,9 @@ class SimI2CBus:
 
     def i2c_rdwr(self, *msgs: Any) -> None:
         """smbus2.SMBus.i2c_rdwr over the twins: smbus2.i2c_msg messages, read buffers filled."""
-        from tvsd.hw.i2c_remote import I2C_M_RD, rdwr_messages
+        from tvsd.hw.i2c_remote import fill_reads, rdwr_messages
 
-        data = bytes(self.transfer(rdwr_messages(msgs)))
-        at = 0
-        for m in msgs:
-            if m.flags & I2C_M_RD:
-                ctypes.memmove(m.buf, data[at : at + m.len], m.len)
-                at += m.len
+        fill_reads(msgs, bytes(self.transfer(rdwr_messages(msgs))))
 
     def close(self) -> None:
         self.closed = True
