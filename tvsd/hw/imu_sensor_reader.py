@@ -160,7 +160,7 @@ class SensorReader:
     def _next_due(self) -> float:
         """After a good poll: a bring-up stage's wait from now; else the next poll at a fixed
         rate, one interval after this one was due, so the polls' bus time does not stretch the
-        period (at 1 kHz the frames take ~30 % of a 400 kHz bus per sensor: bus_budget; waiting
+        period (at 1 kHz the frames take ~30 % of a 400 kHz bus per sensor: mpu6050.bus_budget; waiting
         a whole interval after each poll made the period 29 ms, 35 % of the FIFO's 83 ms).
         Late (the poll took longer than the interval): at once, the schedule from now."""
         now = self.clock.now()

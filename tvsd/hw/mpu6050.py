@@ -1,4 +1,4 @@
-"""MPU6050 driver: the only module of tvsd that speaks I2C (through smbus2).
+"""MPU6050 driver: one sensor's transfers through smbus2 (both sensors' shared poll: tvsd.hw.imu_joint).
 
 Register facts are from the MPU-6000/6050 Register Map rev 4.2 and Product Specification rev 3.4.
 

@@ -9,7 +9,7 @@ Faults (Fault, scheduled in simulated time, per address or for all): "nack" (ENX
 "partial" (FIFO reads pop 1..n-1 bytes, then fail with EIO; other transfers pass), "stall" (each
 transaction hangs for stall_s, then ETIMEDOUT), "disconnect" (ENXIO, the sensor keeps sampling),
 "power_cycle" (ENXIO, then the sensor comes back reset and asleep). Also `error_rate` (random EIO)
-and a wrong WHO_AM_I (the `who_am_i` argument).
+and, on the chip's side, a wrong WHO_AM_I (SimMpu6050's `who_am_i` argument).
 """
 
 from __future__ import annotations
