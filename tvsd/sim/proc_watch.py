@@ -2,9 +2,10 @@
 
 A stall watch (tvsd.sim.sil_watch) inside the process stands still with it: it can say how long
 and, after, who ran or queued, but not where the threads were while blocked. This sampler, its
-own process (SCHED_FIFO `--priority` when permitted), reads one file every `--tick` s: the
-watch thread's CPU time (/proc/PID/task/WATCH/schedstat; the watch runs every 10 ms). When it has
-not grown for `--stall` s the process stands: every thread's state, wchan, system call, kernel
+own process (SCHED_FIFO `--priority` when permitted), looks every TICK_S at the watch's tick
+count, which the watch stores in a shared file mapping (WATCH.json.beat, 8 bytes; no system call
+on either side). When it has not moved for STALL_S the watch missed ≥ 3 ticks, whatever held it
+(the GIL, the CPU, the kernel) and the process stands: every thread's state, wchan, system call, kernel
 stack and page faults are read (tvsd.sim.proc_where; none of those files waits for the
 process's memory-map lock), again every SNAP_EVERY_S while it lasts, and the episode is kept
 with its length, the process's page faults and the machine's pressure totals across it.
@@ -21,6 +22,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import mmap
 import os
 import signal
 import time
@@ -29,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from tvsd.sim import proc_where as W
+from tvsd.sim.sil_watch import BEAT_BYTES, BEAT_SUFFIX
 
 TICK_S = 0.01
 STALL_S = 0.04  # the watch's CPU time still for this long: its 10 ms ticks missed ≥ 3
@@ -38,11 +41,12 @@ EPISODES_KEPT = 20
 EXPORT_S = 1.0
 
 
-def _run_ns(pid: int, tid: int) -> int | None:
+def _beat(path: Path) -> mmap.mmap | None:
+    """The watch's tick count, mapped (None until the watch made it)."""
     try:
-        with open(f"/proc/{pid}/task/{tid}/schedstat", "rb") as f:
-            return int(f.read().split()[0])
-    except (OSError, ValueError, IndexError):
+        with path.open("rb") as f:
+            return mmap.mmap(f.fileno(), BEAT_BYTES, access=mmap.ACCESS_READ)
+    except (OSError, ValueError):
         return None
 
 
@@ -76,10 +80,14 @@ class ProcWatch:
         return out
 
     def run(self) -> None:
-        while not self.watch_tid and not self.stop:
+        beat = None
+        while (not self.watch_tid or beat is None) and not self.stop:
             self.watch_tid, self.names = _names(self.report_path)
+            beat = _beat(self.report_path.with_name(self.report_path.name + BEAT_SUFFIX))
             time.sleep(0.2)
-        last_ns, last_moved = _run_ns(self.pid, self.watch_tid), time.monotonic()
+        if beat is None:
+            return
+        last_ns, last_moved = beat[:BEAT_BYTES], time.monotonic()
         episode: dict[str, Any] | None = None
         due = time.monotonic() + self.tick_s
         next_names = due + EXPORT_S
@@ -89,9 +97,9 @@ class ProcWatch:
             self.late_max_ms = max(self.late_max_ms, 1e3 * (now - due))
             due = max(due + self.tick_s, now)
             self.ticks += 1
-            ns = _run_ns(self.pid, self.watch_tid)
-            if ns is None:  # the process (or its watch) ended
-                break
+            if not os.path.exists(f"/proc/{self.pid}/task/{self.watch_tid}"):
+                break  # the process (or its watch) ended
+            ns = beat[:BEAT_BYTES]
             if ns != last_ns:
                 if episode is not None:
                     self._close(episode, now, last_moved)

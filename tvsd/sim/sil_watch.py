@@ -28,6 +28,7 @@ from __future__ import annotations
 import contextlib
 import gc
 import json
+import mmap
 import os
 import sys
 import threading
@@ -45,6 +46,9 @@ STALL_S = 0.05  # late by this much: a stall (the FIFO of a 1 kHz MPU6050 holds 
 STALLS_KEPT = 20
 GC_KEPT = 64
 EXPORT_S = 1.0
+# The watch's tick count, stored each tick in `<export_to>.beat` (a shared file mapping): an
+# outside sampler (tvsd.sim.proc_watch) sees it stop while the process stands
+BEAT_SUFFIX, BEAT_BYTES = ".beat", 8
 # Under --realtime: above the process's other threads (plant 30, bus 45), so that its own
 # wake-up is late only when the whole process is held off or the GIL is held.
 WATCH_PRIORITY = 46
@@ -130,6 +134,7 @@ class StallWatch:
                 self.realtime = f"refused: {exc.strerror or exc}"
         target = Path(self.export_to) if self.export_to else None
         self.watch_tid = threading.get_native_id()
+        beat = self._beat(target)
         self._sample()
         prev_stat, prev_now = _schedstat(), time.monotonic()
         due = prev_now + self.tick_s
@@ -140,6 +145,8 @@ class StallWatch:
             stat = _schedstat()
             late = now - due
             self.ticks += 1
+            if beat is not None:
+                beat[:BEAT_BYTES] = self.ticks.to_bytes(BEAT_BYTES, "little")
             self.late_max_ms = max(self.late_max_ms, 1e3 * late)
             if late > self.stall_s:
                 self._record(prev_now, now, prev_stat, stat)
@@ -155,6 +162,18 @@ class StallWatch:
                 next_export = now + EXPORT_S
         if target is not None:
             self._export(target)
+
+    @staticmethod
+    def _beat(target: Path | None) -> mmap.mmap | None:
+        """The tick count's shared mapping beside the report (None: no report, or no file)."""
+        if target is None:
+            return None
+        try:
+            with target.with_name(target.name + BEAT_SUFFIX).open("w+b") as f:
+                f.truncate(BEAT_BYTES)
+                return mmap.mmap(f.fileno(), BEAT_BYTES)
+        except OSError:
+            return None
 
     def _sample(self) -> None:
         """The per-second sample: page faults (each thread's, the process's) and pressure."""
