@@ -83,16 +83,22 @@ def test_the_outside_sampler_sees_where_the_threads_are_while_the_process_stands
         os.kill(child.pid, signal.SIGSTOP)
         time.sleep(0.3)
         os.kill(child.pid, signal.SIGCONT)
-        rep = wait_for(lambda: _report(out), 30.0, "an episode", ok=lambda r: r.get("episodes", 0) >= 1)
+        stopped = wait_for(lambda: _stopped(_report(out)), 30.0, "an episode with the threads stopped")
     finally:
         child.kill()
         child.wait()
         if sampler is not None:
             sampler.kill()
             sampler.wait()
-    ep = rep["worst"]
+    ep = stopped[0]  # (the machine's load may make others, shorter: the watch is not SCHED_FIFO here)
     assert 260 <= ep["ms"] < 1300, ep
-    assert ep["snaps"], ep
-    states = {t["state"] for t in ep["snaps"][0]["threads"].values()}
-    assert states == {"T"}, ep["snaps"][0]
     assert "faults" in ep and ep["faults"]["majflt"] >= 0
+
+
+def _stopped(rep: dict) -> list[dict]:
+    """The sampler's episodes in which every thread was seen stopped (state T)."""
+    return [
+        e
+        for e in rep.get("recent", [])
+        if any({t["state"] for t in s["threads"].values()} == {"T"} for s in e["snaps"])
+    ]
