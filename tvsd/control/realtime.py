@@ -11,7 +11,7 @@ MCL_CURRENT, MCL_FUTURE, MCL_ONFAULT = 1, 2, 4
 # (docs/measurements/stall.md: the soak's A/B).
 MLOCK_MODES = ("onfault", "future", "current")
 ENV_MLOCK = "TVSD_MLOCK"
-MLOCK_DEFAULT = "future"
+MLOCK_DEFAULT = "onfault"  # the soak's 627 ms stall: docs/measurements/stall.md
 
 
 def mlock_mode() -> str:
