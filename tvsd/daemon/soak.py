@@ -78,10 +78,10 @@ LATE_INPUT = str(FaultKind.MCU_LATE_INPUT)
 class _Daemon:
     """`tvsd --sil --realtime` in a temporary directory; killed on any exit."""
 
-    def __init__(self, tmp: Path, command: list[str]) -> None:
+    def __init__(self, tmp: Path, command: list[str], reports: Path) -> None:
         self.sock, self.log_path = tmp / "tvsd.sock", tmp / "tvsd.log"
         # the stall watches' reports (tvsd.sim.sil_watch): the SIL process's, the daemon's
-        self.stalls = {"sil": tmp / "sil-stalls.json", "daemon": tmp / "daemon-stalls.json"}
+        self.stalls = {"sil": reports / "sil-stalls.json", "daemon": reports / "daemon-stalls.json"}
         env = {
             **os.environ,
             ENV_SIL_STALLS: str(self.stalls["sil"]),
@@ -215,9 +215,16 @@ def soak(
     L.warm_up()
     every = record_every_s or min(RECORD_EVERY_S, max(5.0, seconds / 4))
     period_s = 1e-4  # overwritten from the daemon's loop rate below
-    with tempfile.TemporaryDirectory(prefix="tvsd-soak-") as tmpdir:
+    # The watches' reports, rewritten every second, in memory: on a disk each rewrite frees the
+    # old file's blocks, and with online discard (ext4 -o discard) the watch then waited up to
+    # 240 ms in the device's discard (docs/measurements/stall.md): a stall of its own making.
+    shm = "/dev/shm" if os.access("/dev/shm", os.W_OK) else None
+    with (
+        tempfile.TemporaryDirectory(prefix="tvsd-soak-") as tmpdir,
+        tempfile.TemporaryDirectory(prefix="tvsd-soak-", dir=shm) as repdir,
+    ):
         tmp = Path(tmpdir)
-        tvsd = _Daemon(tmp, daemon or [sys.executable, "-m", "tvsd.daemon.main"])
+        tvsd = _Daemon(tmp, daemon or [sys.executable, "-m", "tvsd.daemon.main"], Path(repdir))
         hogs: list[subprocess.Popen[bytes]] = []
         load = Load()
         threads: list[threading.Thread] = []
@@ -225,7 +232,7 @@ def soak(
         export_threads: list[threading.Thread] = []
         ctl = RpcClient(tvsd.sock, timeout=30.0)
         sampler: subprocess.Popen[bytes] | None = None
-        where_out = tmp / "daemon-where.json"
+        where_out = Path(repdir) / "daemon-where.json"
         try:
             tvsd.wait_up(ctl)
             spin_up_faults = _spin_up(tvsd, ctl)
