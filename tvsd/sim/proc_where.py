@@ -109,7 +109,7 @@ def where(pid: int | str, tid: int, with_stack: bool = True) -> dict[str, Any] |
 
 def pressure() -> dict[str, dict[str, int]] | None:
     """The machine's pressure stall totals (µs some / full task stalled since boot) for memory,
-    io and cpu; None where the kernel has no PSI."""
+    io and cpu, and each CPU's steal time (µs); None where the kernel has neither."""
     out: dict[str, dict[str, int]] = {}
     for res in ("memory", "io", "cpu"):
         text = _read(f"/proc/pressure/{res}")
@@ -122,7 +122,23 @@ def pressure() -> dict[str, dict[str, int]] | None:
                 k, _, v = kv.partition("=")
                 if k == "total":
                     out[res][f"{kind}_us"] = int(v)
+    steal = _steal_us()
+    if steal:
+        out["steal"] = steal
     return out or None
+
+
+def _steal_us() -> dict[str, int]:
+    """Per CPU, µs its virtual CPU was not run by the hypervisor (/proc/stat's steal, in USER_HZ
+    ticks): a whole-machine stall that no priority inside can help."""
+    text = _read("/proc/stat") or ""
+    hz = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for line in text.splitlines():
+        f = line.split()
+        if f and f[0].startswith("cpu") and f[0] != "cpu" and len(f) > 8:
+            out[f"{f[0]}_us"] = int(f[8]) * 1_000_000 // hz
+    return out
 
 
 def pressure_delta(before: dict[str, Any] | None, after: dict[str, Any] | None) -> dict[str, Any] | None:
