@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from conftest import wait_for
 
 from tvsd.sim.sil_watch import ENV_STALLS
@@ -63,6 +64,7 @@ def test_a_stopped_process_is_one_stall_in_which_no_thread_ran(tmp_path: Path) -
     assert worst["gc"] == [] and worst["plant_lag_ms"] is None
 
 
+@pytest.mark.slow
 def test_the_outside_sampler_sees_where_the_threads_are_while_the_process_stands(tmp_path: Path) -> None:
     """The same stop seen from outside (tvsd.sim.proc_watch): the watch's tick count stops, and
     while it does the sampler reads every thread of the stopped process — state T (stopped),
