@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from conftest import wait_for
 
 from tvsd.sim.sil_watch import ENV_STALLS
@@ -61,3 +62,45 @@ def test_a_stopped_process_is_one_stall_in_which_no_thread_ran(tmp_path: Path) -
     for name, t in worst["threads"].items():
         assert t["ran_ms"] <= 20 and t["queued_ms"] <= 20, (name, t)
     assert worst["gc"] == [] and worst["plant_lag_ms"] is None
+
+
+@pytest.mark.slow
+def test_the_outside_sampler_sees_where_the_threads_are_while_the_process_stands(tmp_path: Path) -> None:
+    """The same stop seen from outside (tvsd.sim.proc_watch): the watch's tick count stops, and
+    while it does the sampler reads every thread of the stopped process — state T (stopped),
+    the process's faults — at least once. Tolerances: the episode lasts ≥ the 0.3 s stop minus
+    the sampler's 40 ms threshold (it is timed from the watch's last tick seen) and < stop + 1 s
+    (a loaded machine's wake-up after SIGCONT)."""
+    path, out = tmp_path / "stalls.json", tmp_path / "where.json"
+    child = subprocess.Popen(
+        [sys.executable, "-c", CHILD], stdout=subprocess.PIPE, env={**os.environ, ENV_STALLS: str(path)}
+    )
+    sampler = None
+    try:
+        assert child.stdout is not None and child.stdout.readline().strip() == b"up"
+        wait_for(lambda: _report(path).get("watch_tid", 0), 30.0, "the watch's thread id")
+        args = ["--pid", str(child.pid), "--report", str(path), "--out", str(out), "--priority", "0"]
+        sampler = subprocess.Popen([sys.executable, "-m", "tvsd.sim.proc_watch", *args])
+        wait_for(lambda: _report(out).get("ticks", 0) > 5, 30.0, "the sampler ticking")
+        os.kill(child.pid, signal.SIGSTOP)
+        time.sleep(0.3)
+        os.kill(child.pid, signal.SIGCONT)
+        stopped = wait_for(lambda: _stopped(_report(out)), 30.0, "an episode with the threads stopped")
+    finally:
+        child.kill()
+        child.wait()
+        if sampler is not None:
+            sampler.kill()
+            sampler.wait()
+    ep = stopped[0]  # (the machine's load may make others, shorter: the watch is not SCHED_FIFO here)
+    assert 260 <= ep["ms"] < 1300, ep
+    assert "faults" in ep and ep["faults"]["majflt"] >= 0
+
+
+def _stopped(rep: dict) -> list[dict]:
+    """The sampler's episodes in which every thread was seen stopped (state T)."""
+    return [
+        e
+        for e in rep.get("recent", [])
+        if any({t["state"] for t in s["threads"].values()} == {"T"} for s in e["snaps"])
+    ]

@@ -6,6 +6,45 @@ import ctypes
 import os
 from dataclasses import dataclass
 
+MCL_CURRENT, MCL_FUTURE, MCL_ONFAULT = 1, 2, 4
+# The memory lock's modes (lock_memory); $TVSD_MLOCK picks one, "none" too: a measurement knob
+# (docs/measurements/stall.md: the soak's A/B).
+MLOCK_MODES = ("onfault", "future", "current")
+ENV_MLOCK = "TVSD_MLOCK"
+MLOCK_DEFAULT = "onfault"  # the soak's 627 ms stall: docs/measurements/stall.md
+
+
+def mlock_mode() -> str:
+    """The mode asked for: $TVSD_MLOCK if it names one, else the default."""
+    mode = os.environ.get(ENV_MLOCK, "").strip()
+    return mode if mode in MLOCK_MODES or mode == "none" else MLOCK_DEFAULT
+
+
+def lock_memory(mode: str) -> str:
+    """Lock the process's memory so that the control loop takes no page fault; what was granted.
+
+    Every mode first locks and populates what is mapped now (MCL_CURRENT): the loop's arrays,
+    its thread's stack, the libraries' code — what the loop touches exists before it runs.
+    Then, for mappings made later:
+    - "future" (MCL_FUTURE): each is populated in full inside the mmap() that makes it, under the
+      process's memory-map lock; any other thread that maps, unmaps or faults waits for all of it
+      (on this VM ~12 ms a MiB of fresh memory: a 50 MB reply buffer stands the process ~0.6 s);
+    - "onfault" (MCL_FUTURE | MCL_ONFAULT): each page is locked when first touched, by the thread
+      that touches it, one fault at a time;
+    - "current": later mappings are not locked (faulted in by whoever touches them).
+    """
+    libc = ctypes.CDLL(None, use_errno=True)
+    calls = {
+        "current": [MCL_CURRENT],
+        "future": [MCL_CURRENT | MCL_FUTURE],
+        "onfault": [MCL_CURRENT, MCL_FUTURE | MCL_ONFAULT],  # the 2nd leaves current mappings locked
+    }[mode]
+    for flags in calls:
+        if libc.mlockall(flags) != 0:
+            err = ctypes.get_errno()
+            return f"refused: {os.strerror(err)} (needs CAP_IPC_LOCK or a larger `ulimit -l`)"
+    return f"granted ({mode})"
+
 
 @dataclass(frozen=True)
 class Realtime:
@@ -30,13 +69,6 @@ def request_realtime(priority: int = 80, cpu: int | None = None, lock: bool = Tr
         aff = f"granted (CPU {target} of {allowed})"
     except OSError as exc:
         aff = f"refused: {exc.strerror or exc} (CPU {target} not in {allowed})"
-    if not lock:
-        mem = "not requested"
-    else:
-        libc = ctypes.CDLL(None, use_errno=True)
-        if libc.mlockall(1 | 2) == 0:  # MCL_CURRENT | MCL_FUTURE: no page faults in the loop
-            mem = "granted (current and future pages)"
-        else:
-            err = ctypes.get_errno()
-            mem = f"refused: {os.strerror(err)} (needs CAP_IPC_LOCK or a larger `ulimit -l`)"
+    mode = mlock_mode()
+    mem = "not requested" if not lock or mode == "none" else lock_memory(mode)
     return Realtime(fifo, aff, mem)

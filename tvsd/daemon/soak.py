@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from tvsd.control.latency import BINS_PER_DECADE
+from tvsd.control.realtime import mlock_mode
 from tvsd.daemon.faults import FaultKind
 from tvsd.daemon.imu_service import ENV_STALLS as ENV_DAEMON_STALLS
 from tvsd.daemon.soak_load import (
@@ -58,6 +59,7 @@ from tvsd.daemon.soak_load import (
     hammer,
     start_hogs,
 )
+from tvsd.daemon.soak_where import start_sampler, stop_sampler, where_figures
 from tvsd.daemon.state import DaemonState
 from tvsd.errors import DeviceError
 from tvsd.rpc.client import RemoteDeviceError, RpcClient
@@ -76,10 +78,10 @@ LATE_INPUT = str(FaultKind.MCU_LATE_INPUT)
 class _Daemon:
     """`tvsd --sil --realtime` in a temporary directory; killed on any exit."""
 
-    def __init__(self, tmp: Path, command: list[str]) -> None:
+    def __init__(self, tmp: Path, command: list[str], reports: Path) -> None:
         self.sock, self.log_path = tmp / "tvsd.sock", tmp / "tvsd.log"
         # the stall watches' reports (tvsd.sim.sil_watch): the SIL process's, the daemon's
-        self.stalls = {"sil": tmp / "sil-stalls.json", "daemon": tmp / "daemon-stalls.json"}
+        self.stalls = {"sil": reports / "sil-stalls.json", "daemon": reports / "daemon-stalls.json"}
         env = {
             **os.environ,
             ENV_SIL_STALLS: str(self.stalls["sil"]),
@@ -213,20 +215,31 @@ def soak(
     L.warm_up()
     every = record_every_s or min(RECORD_EVERY_S, max(5.0, seconds / 4))
     period_s = 1e-4  # overwritten from the daemon's loop rate below
-    with tempfile.TemporaryDirectory(prefix="tvsd-soak-") as tmpdir:
+    # The watches' reports, rewritten every second, in memory: on a disk each rewrite frees the
+    # old file's blocks, and with online discard (ext4 -o discard) the watch then waited up to
+    # 240 ms in the device's discard (docs/measurements/stall.md): a stall of its own making.
+    shm = "/dev/shm" if os.access("/dev/shm", os.W_OK) else None
+    with (
+        tempfile.TemporaryDirectory(prefix="tvsd-soak-") as tmpdir,
+        tempfile.TemporaryDirectory(prefix="tvsd-soak-", dir=shm) as repdir,
+    ):
         tmp = Path(tmpdir)
-        tvsd = _Daemon(tmp, daemon or [sys.executable, "-m", "tvsd.daemon.main"])
+        tvsd = _Daemon(tmp, daemon or [sys.executable, "-m", "tvsd.daemon.main"], Path(repdir))
         hogs: list[subprocess.Popen[bytes]] = []
         load = Load()
         threads: list[threading.Thread] = []
         exports: list[dict[str, Any]] = []
         export_threads: list[threading.Thread] = []
         ctl = RpcClient(tvsd.sock, timeout=30.0)
+        sampler: subprocess.Popen[bytes] | None = None
+        where_out = Path(repdir) / "daemon-where.json"
         try:
             tvsd.wait_up(ctl)
             spin_up_faults = _spin_up(tvsd, ctl)
             before: Any = ctl.call("status")
             stalls_before = tvsd.stall_reports()
+            if stalls_before["daemon"].get("watch_tid"):  # where its threads are when it stands
+                sampler = start_sampler(tvsd.proc.pid, tvsd.stalls["daemon"], where_out)
             if before["loop"]["rate_hz"]:
                 period_s = 1.0 / round(before["loop"]["rate_hz"])
             recording = Path(str(ctl.call("record_start")["recording"]))  # type: ignore[index]
@@ -263,6 +276,7 @@ def soak(
             t_end = time.monotonic()
             time.sleep(1.2)  # the reports are rewritten every second
             stalls_after = tvsd.stall_reports()
+            sampled = stop_sampler(sampler, where_out)
             load.stop.set()
             for h in hogs:
                 h.kill()
@@ -281,11 +295,15 @@ def soak(
                 h.wait()
             tvsd.end(ctl)
             ctl.close()
+            if sampler is not None and sampler.poll() is None:
+                sampler.kill()
+                sampler.wait()
     res = _figures(
         seconds, clients, every, before, after, floor["floor"], load, exports, attempted, len(hogs)
     )
     stalls = _stall_figures(stalls_before, stalls_after, t0, t_end)
-    return {**res, **stalls, "soak_spin_up_faults": spin_up_faults}
+    where = where_figures(stalls_before["daemon"], stalls_after["daemon"], sampled, t0, t_end)
+    return {**res, **stalls, **where, "soak_spin_up_faults": spin_up_faults, "soak_mlock": mlock_mode()}
 
 
 def _stall_figures(before: dict[str, Any], after: dict[str, Any], t0: float, t1: float) -> dict[str, Any]:

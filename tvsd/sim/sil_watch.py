@@ -14,7 +14,11 @@ tells them apart after the fact, per thread, from the kernel's own accounting
 `StallWatch(plant).start(realtime)` runs a thread that wakes every TICK_S; a wake-up later than
 STALL_S past its due time is a stall, recorded with those deltas per thread (by Python name),
 the collector's pauses that overlap it, the plant's lag behind its pacing line then, and where
-each thread's Python stack stood when the watchdog ran again. `report()` is JSON: the count,
+each thread's Python stack stood when the watchdog ran again, and where each thread was in the
+kernel then (tvsd.sim.proc_where: state, wchan, system call, kernel stack; a thread still blocked
+when the watch runs again shows what held it) with its page faults since the last second's
+sample. Every second: the process's and each thread's page faults and the machine's pressure
+totals (/proc/pressure). `report()` is JSON: the count,
 the worst, the last STALLS_KEPT. With $TVSD_SIL_STALLS naming a file, it is rewritten every
 second (the soak reads it: its daemon's SIL process inherits the environment).
 """
@@ -24,6 +28,7 @@ from __future__ import annotations
 import contextlib
 import gc
 import json
+import mmap
 import os
 import sys
 import threading
@@ -33,12 +38,17 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from tvsd.sim import proc_where as W
+
 ENV_STALLS = "TVSD_SIL_STALLS"
 TICK_S = 0.01
 STALL_S = 0.05  # late by this much: a stall (the FIFO of a 1 kHz MPU6050 holds 85 ms)
 STALLS_KEPT = 20
 GC_KEPT = 64
 EXPORT_S = 1.0
+# The watch's tick count, stored each tick in `<export_to>.beat` (a shared file mapping): an
+# outside sampler (tvsd.sim.proc_watch) sees it stop while the process stands
+BEAT_SUFFIX, BEAT_BYTES = ".beat", 8
 # Under --realtime: above the process's other threads (plant 30, bus 45), so that its own
 # wake-up is late only when the whole process is held off or the GIL is held.
 WATCH_PRIORITY = 46
@@ -88,6 +98,11 @@ class StallWatch:
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self.realtime = "not requested"
+        self.watch_tid = 0
+        # each second: {tid: (state, minflt, majflt)}, the process's faults, the machine's pressure
+        self._tstat: dict[int, tuple[str, int, int]] = {}
+        self.faults: dict[str, int] | None = None
+        self.pressure: dict[str, Any] | None = None
 
     # --- the collector's pauses ---------------------------------------------------------------
     def _gc(self, phase: str, info: dict[str, Any]) -> None:
@@ -118,6 +133,9 @@ class StallWatch:
             except OSError as exc:
                 self.realtime = f"refused: {exc.strerror or exc}"
         target = Path(self.export_to) if self.export_to else None
+        self.watch_tid = threading.get_native_id()
+        beat = self._beat(target)
+        self._sample()
         prev_stat, prev_now = _schedstat(), time.monotonic()
         due = prev_now + self.tick_s
         next_export = due + EXPORT_S
@@ -127,6 +145,8 @@ class StallWatch:
             stat = _schedstat()
             late = now - due
             self.ticks += 1
+            if beat is not None:
+                beat[:BEAT_BYTES] = self.ticks.to_bytes(BEAT_BYTES, "little")
             self.late_max_ms = max(self.late_max_ms, 1e3 * late)
             if late > self.stall_s:
                 self._record(prev_now, now, prev_stat, stat)
@@ -135,17 +155,57 @@ class StallWatch:
             if lag is not None and lag > self.plant_lag_max_ms:
                 self.plant_lag_max_ms, self.plant_lag_max_t = lag, now
             due = max(due + self.tick_s, now)  # after a stall: from now, no burst of ticks
-            if target is not None and (now >= next_export or self._stop.is_set()):
-                self._export(target)
+            if now >= next_export or self._stop.is_set():
+                self._sample()
+                if target is not None:
+                    self._export(target)
                 next_export = now + EXPORT_S
         if target is not None:
             self._export(target)
+
+    @staticmethod
+    def _beat(target: Path | None) -> mmap.mmap | None:
+        """The tick count's shared mapping beside the report (None: no report, or no file)."""
+        if target is None:
+            return None
+        try:
+            with target.with_name(target.name + BEAT_SUFFIX).open("w+b") as f:
+                f.truncate(BEAT_BYTES)
+                return mmap.mmap(f.fileno(), BEAT_BYTES)
+        except OSError:
+            return None
+
+    def _sample(self) -> None:
+        """The per-second sample: page faults (each thread's, the process's) and pressure."""
+        tstat = {}
+        for tid in W.tids():
+            st = W.task_stat("self", tid)
+            if st is not None:
+                tstat[tid] = st
+        faults, pressure = W.process_faults(), W.pressure()
+        with self._lock:
+            self._tstat, self.faults, self.pressure = tstat, faults, pressure
+
+    def _where(self, names: dict[int, str]) -> dict[str, Any]:
+        """Each thread of the process in the kernel now, with its page faults since the last
+        per-second sample (`minflt_since`, `majflt_since`)."""
+        out = {}
+        for tid in W.tids():
+            w = W.where("self", tid)
+            if w is None:
+                continue
+            old = self._tstat.get(tid)
+            if old is not None:
+                w["minflt_since"], w["majflt_since"] = w["minflt"] - old[1], w["majflt"] - old[2]
+            out[names.get(tid, str(tid))] = w
+        return out
 
     def _record(
         self, t0: float, t1: float, before: dict[int, tuple[int, int]], after: dict[int, tuple[int, int]]
     ) -> None:
         """One stall: the window (t0, t1] between the watchdog's last two runs."""
-        names = {t.native_id: t.name for t in threading.enumerate()}
+        names = {t.native_id: t.name for t in threading.enumerate() if t.native_id is not None}
+        kernel = self._where(names)  # first: a thread still blocked now shows what held it
         frames = sys._current_frames()
         stacks = {}
         for t in threading.enumerate():
@@ -173,6 +233,9 @@ class StallWatch:
             "gc": gc_in,
             "plant_lag_ms": lag_ms,
             "stacks_after": stacks,
+            "where_after": kernel,
+            "faults": W.process_faults(),
+            "pressure": W.pressure(),
         }
         with self._lock:
             self.stalls += 1
@@ -200,10 +263,20 @@ class StallWatch:
                 "plant_lag_max_ms": self.plant_lag_max_ms,
                 "plant_lag_max_t": round(self.plant_lag_max_t, 3),
                 "realtime": self.realtime,
+                "watch_tid": self.watch_tid,
+                "tids": {t.name: t.native_id for t in threading.enumerate()},
+                "faults": self.faults,
+                "thread_faults": self._thread_faults(),
+                "pressure": self.pressure,
                 "worst": self.worst,
                 "recent": list(self.recent),
                 **(self.extra() if self.extra is not None else {}),
             }
+
+    def _thread_faults(self) -> dict[str, list[int]]:
+        """[minor, major] page faults of each thread so far, by name (the lock held)."""
+        names = {t.native_id: t.name for t in threading.enumerate()}
+        return {names.get(tid, str(tid)): [st[1], st[2]] for tid, st in self._tstat.items()}
 
     def _export(self, target: Path) -> None:
         tmp = target.with_name(target.name + ".tmp")
