@@ -99,3 +99,27 @@ def test_matrix_drifts_the_per_window_refits_refused_are_named(tmp_path, seed, p
         assert diagnose(data, cfg.plant.v0).cause == "none"  # the rule before
     finally:
         verdict.DRIFT_TREND_TEST = True
+
+
+def test_an_r_drift_at_a_steady_speed_is_visible_only_as_the_friction_it_balances():
+    """At a steady speed the drive's torque beyond the back-EMF, b_u·u − b_ω·ω, is what the
+    friction takes (kv·ω + τc), and an R drift scales just that: 15 % of it over the record is
+    Δ·(kv·ω + τc)·rms(t/T − ½) = 0.15·(1e-4·100 + 2e-3)/√12 ≈ 5.2e-4 N·m, where the table's
+    units (Δ·b_u·rms u) say 0.15·0.262 ≈ 0.039 N·m (the back-EMF takes 0.25). Noise units: over J·σv."""
+    from types import SimpleNamespace
+
+    from tvsd.analysis.exposure import exposure
+
+    plant = SimpleNamespace(J=1e-4, kv=1e-4, R=1.0, kM=0.05, ku=1.0, kb=0.05, tau_c=2e-3)
+    b_u, b_w = plant.kM * plant.ku / plant.R, plant.kM * plant.kb / plant.R
+    w = np.full(30_000, 100.0)
+    u = np.full_like(w, (plant.kv * 100.0 + plant.tau_c + b_w * 100.0) / b_u)
+    e = exposure("drift:parameter=R,relative_change=0.15", u, w, plant, 1.0, 1e-3)
+    expect = 0.15 * (plant.kv * 100.0 + plant.tau_c) / np.sqrt(12) / plant.J
+    assert e["visible"] == pytest.approx(expect, rel=0.01)
+    assert (
+        e["units"] == pytest.approx(0.15 * b_u * u[0] / plant.J, rel=1e-3) and e["units"] > 10 * e["visible"]
+    )
+    # a shaft that never moves shows no drift of its friction
+    still = exposure("drift:parameter=friction,relative_change=0.15", u, np.zeros_like(w), plant, 1.0, 1e-3)
+    assert still["visible"] == 0.0
