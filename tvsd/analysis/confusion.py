@@ -23,7 +23,9 @@ BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, math.inf)
 
 
 def units(r: dict[str, Any]) -> float:
-    u = r.get("seen", {}).get("units")
+    # A drift's size as refits over time see it (exposure.py `visible`), where the row has it.
+    seen = r.get("seen") or {}
+    u = seen.get("visible", seen.get("units"))
     u = r["noise_units"] if u is None else u
     return float(u) if u is not None and math.isfinite(float(u)) else math.nan
 

@@ -12,7 +12,9 @@ the effect: the pilot), state the size in units the test can see:
 - friction asymmetry: the share of moving samples in the less-used direction;
 - delay: b_u·rms(u(t) − u(t − τ)) in noise units (matrix.delay_torque) on the recorded command;
 - drift: the term's change over the run in noise units (R: Δ·b_u·rms u, kv: Δ·kv·rms ω,
-  friction: Δ·τc), as the open-loop table states it;
+  friction: Δ·τc), as the open-loop table states it; `visible`: the drift's torque Δ·(t/T)·term
+  less what the baseline's own columns (u, ω, sgn ω, a constant) absorb, rms over the moving
+  samples — what refits over time can see of it (tvsd.analysis.drift);
 - imbalance, cogging: the revolutions the shaft's angle spans (max − min of ∫ω dt over 2π): a
   torque periodic N times per revolution shows its period only over ≥ 1/N of a turn.
 
@@ -71,7 +73,29 @@ def exposure(
             "friction": plant.tau_c,
         }[str(p["parameter"])]
         out["units"] = rel * term / jsv
+        out["visible"] = _drift_visible(str(p["parameter"]), rel, u, omega, plant, moving) / jsv
     elif e.name in ("imbalance", "cogging"):
         angle = np.cumsum(omega) * dt
         out["revolutions"] = float(np.max(angle) - np.min(angle)) / (2 * math.pi)
     return {k: (round(v, 5) if math.isfinite(v) else v) for k, v in out.items()}
+
+
+def _drift_visible(
+    parameter: str, rel: float, u: np.ndarray, omega: np.ndarray, plant: Any, moving: np.ndarray
+) -> float:
+    """The rms of the drift's torque not explained by a constant baseline. An R drift scales the
+    drive's gain and its back-EMF alike (b_u·u − b_ω·ω, what drives the shaft beyond the EMF: at a
+    steady speed only the friction it balances), so 15 % of it can be a small torque."""
+    if np.count_nonzero(moving) < 10:
+        return 0.0
+    tf = np.linspace(0.0, 1.0, len(u))[moving]
+    um, wm = u[moving], omega[moving]
+    term = {
+        "R": -(plant.kM * plant.ku / plant.R * um - plant.kM * plant.kb / plant.R * wm),
+        "kv": plant.kv * wm,
+        "friction": plant.tau_c * np.sign(wm),
+    }[parameter]
+    d = rel * tf * term
+    A = np.column_stack([um, wm, np.sign(wm), np.ones_like(wm)])
+    coef, *_ = np.linalg.lstsq(A, d, rcond=None)
+    return float(np.sqrt(np.mean((d - A @ coef) ** 2)))

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from tvsd.analysis import absorber, sense
+from tvsd.analysis import absorber, drift, sense
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis.dataset import Dataset
@@ -241,6 +241,14 @@ def _drift_agrees(design: D.Design, out: C.Outcome, parameter: str, sign: float)
 
 
 DRIFT_PINNED_WINDOWS = True  # False: every window counted, as before
+DRIFT_TREND_TEST = True  # False: the per-window refits (_drift_agrees), as before
+
+
+def _drift_trend(design: D.Design, out: C.Outcome, parameter: str, sign: float) -> bool:
+    """The windowed trend test (tvsd.analysis.drift), or the per-window refits before it."""
+    if not DRIFT_TREND_TEST:
+        return _drift_agrees(design, out, parameter, sign)
+    return drift.agrees(design, out, parameter, sign).agrees
 
 
 def _trend_agrees(x: np.ndarray, y: np.ndarray, var: np.ndarray, sign: float) -> bool:
@@ -334,7 +342,7 @@ def name_cause(
             effect.update(_translate(t.cause, effect, th, design, J, b))
         ok = above and not dissolved
         if ok and t.cause == "drift" and t.coef is not None:
-            ok = _drift_agrees(design, out, str(effect["parameter"]), float(t.coef[0]))
+            ok = _drift_trend(design, out, str(effect["parameter"]), float(t.coef[0]))
             why = None if ok else WHY["drift_windows"]
         if ok and chosen is None:
             # Out of sample: fitted on four fifths, the extension must predict the fifth left out
