@@ -23,7 +23,10 @@ BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, math.inf)
 
 
 def units(r: dict[str, Any]) -> float:
-    u = r.get("seen", {}).get("units")
+    """The effect's size as the recording shows it: for a dead zone the part of its torque a
+    Coulomb level cannot take (exposure.py's `exposed_units`) where the row has it."""
+    seen = r.get("seen", {})
+    u = seen.get("exposed_units", seen.get("units"))
     u = r["noise_units"] if u is None else u
     return float(u) if u is not None and math.isfinite(float(u)) else math.nan
 

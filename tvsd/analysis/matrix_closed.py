@@ -140,6 +140,8 @@ def analyse(path: Path, cfg: Config, variant: str) -> tuple[str, float, dict[str
             "z": {s.cause: round(float(s.z), 3) for s in dg.ranked},
             "threshold": round(float(dg.outcome.threshold), 3),
             "reason": dg.reason,
+            # which check refused a cause (verdict.WHY's codes): the gate, a refit, the instruments
+            "why_not": {s.cause: s.why_not[0] for s in dg.ranked if s.why_not},
         }
     except Exception as exc:  # a bad case is a result too (reported, not hidden)
         found = f"error: {type(exc).__name__}: {exc}"[:160]
