@@ -11,7 +11,8 @@ Variants: `ls` (least squares, the doctor's default), `iv` (two-stage least squa
 reference and, when recorded, identify's voltage excitation `u_exc` as instruments),
 `iv_ref` (the reference alone, as before u_exc was recorded), `ls0` (least squares as before this
 branch: every fold in the out-of-sample check, calibrate.heldout_gain; the line scan off the
-command's lines), `ls1` (the folds' rule on, the lines still the command's).
+command's lines), `ls1` (the folds' rule on, the lines still the command's), `ls2` (the
+instrumented confirmation with instrument.IDENTIFIED_ONLY and EXPECTED_MAPS: branch cldz).
 
     python -m tvsd.analysis.matrix_closed OUT.jsonl [--reps 15] [--nulls 30] [--sizes 3,10]
         [--seed 0] [--worker 0 --workers 1] [--variants ls,iv] [--reversal]
@@ -47,7 +48,7 @@ from tvsd.analysis import matrix as M
 from tvsd.causes import Effect, parse_effect
 from tvsd.config import Config, load_config
 
-VARIANTS = ("ls", "ls0", "ls1", "iv", "iv_ref")
+VARIANTS = ("ls", "ls0", "ls1", "ls2", "iv", "iv_ref")
 
 
 def plan(n_null: int, reps: int, sizes: tuple[float, ...], seed: int) -> list[M.Case]:
@@ -129,12 +130,14 @@ def analyse(path: Path, cfg: Config, variant: str) -> tuple[str, float, dict[str
         data = load(path, cfg)
         if variant == "iv_ref":
             data = dataclasses.replace(data, refs={k: v for k, v in data.refs.items() if k != "u_exc"})
-        from tvsd.analysis import calibrate
+        from tvsd.analysis import calibrate, instrument
 
         calibrate.SKIP_UNDETERMINED_FOLDS = variant != "ls0"
         calibrate.LINES_OF_REFERENCE = variant not in ("ls0", "ls1")
-        dg = diagnose(data, cfg.plant.v0, iv=variant not in ("ls", "ls0", "ls1"))
+        instrument.IDENTIFIED_ONLY = instrument.EXPECTED_MAPS = variant == "ls2"
+        dg = diagnose(data, cfg.plant.v0, iv=variant not in ("ls", "ls0", "ls1", "ls2"))
         calibrate.SKIP_UNDETERMINED_FOLDS = calibrate.LINES_OF_REFERENCE = True
+        instrument.IDENTIFIED_ONLY = instrument.EXPECTED_MAPS = False
         found = dg.cause
         why = {
             "z": {s.cause: round(float(s.z), 3) for s in dg.ranked},
