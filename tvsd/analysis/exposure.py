@@ -60,7 +60,7 @@ def exposure(
         inside = moving & (mag < u0)
         out["share"] = float(np.mean(inside | against))
         out["units"] = u0 * b_u / jsv
-        out["exposed_units"] = b_u * _beyond_coulomb(u, omega, u0, moving) / jsv
+        out["exposed_units"] = b_u * beyond_coulomb(u, omega, u0, moving) / jsv
     elif e.name == "friction_asymmetry":
         pos = float(np.mean(moving & (omega > 0)))
         neg = float(np.mean(moving & (omega < 0)))
@@ -82,7 +82,7 @@ def exposure(
     return {k: (round(v, 5) if math.isfinite(v) else v) for k, v in out.items()}
 
 
-def _beyond_coulomb(u: np.ndarray, omega: np.ndarray, u0: float, moving: np.ndarray) -> float:
+def beyond_coulomb(u: np.ndarray, omega: np.ndarray, u0: float, moving: np.ndarray) -> float:
     """rms over the moving samples of clip(u, ±u0) less its mean per direction of motion: the
     dead zone's missing command (u − (u − clip)) that one constant per direction, a Coulomb
     level, does not absorb (V)."""

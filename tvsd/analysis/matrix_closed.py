@@ -157,7 +157,7 @@ def sized(case: M.Case, cfg: Config, tmp: Path, seconds: float, keep: bool = Fal
     quantile, as in open loop (matrix.saturation_size). From the drive limit, 0.97–0.90 ×
     u_max lay above every command of a scanning plant held with ≤ 40 % of the drive. `keep`: the
     pilot stays in `tmp` (a cache) and is reused."""
-    if case.cause != "saturation":
+    if case.cause != "saturation" and not (case.cause == "deadzone" and EXPOSED_DEADZONE):
         return case
     from tvsd.sim.record import record
 
@@ -166,12 +166,42 @@ def sized(case: M.Case, cfg: Config, tmp: Path, seconds: float, keep: bool = Fal
         record(cfg, pilot, "identify", seconds, (), case.seed, rps=case.rps)
     from tvsd.analysis.dataset import load
 
-    u = load(pilot, cfg).u
+    data = load(pilot, cfg)
+    u = data.u
     if not keep:
         pilot.unlink()
+    if case.cause == "deadzone":
+        omega = data.speed if data.speed is not None else np.gradient(data.position, data.t)
+        b_u = cfg.plant.kM * cfg.plant.ku / cfg.plant.R
+        u0, torque = deadzone_size(u, omega, case.size * 0.5 * cfg.plant.J / b_u)
+        units = torque * b_u / (cfg.plant.J * case.sigma_v)
+        return dataclasses.replace(case, effect=f"deadzone:u0={u0:.6g}", noise_units=units)
     u_max, excess = M.saturation_size(u, case.size)
     units = excess * cfg.plant.kM * cfg.plant.ku / cfg.plant.R / (cfg.plant.J * case.sigma_v)
     return dataclasses.replace(case, effect=f"saturation:u_max={u_max:.6g}", noise_units=units)
+
+
+# Opt-in (`--exposed-deadzone`, not measured yet): a closed-loop dead zone sized by what the pilot
+# recording exposes, not by u_max (README: 0.4 % of u_max per 1× gave 0–80 exposed noise units).
+EXPOSED_DEADZONE = False
+
+
+def deadzone_size(u: np.ndarray, omega: np.ndarray, target_v: float) -> tuple[float, float]:
+    """The narrowest zone u0 whose torque beyond a Coulomb level (exposure.beyond_coulomb, in
+    volts of command) on this command reaches `target_v`, and what it reaches: the torque causes'
+    base (m × 0.5·J N·m) in the dead zone's exposed units. Where no zone up to the command's
+    largest |u| reaches it (the command never enters one), the widest's, and the row says so."""
+    from tvsd.analysis.exposure import MOVING_RAD_S, beyond_coulomb
+
+    moving = np.abs(omega) > MOVING_RAD_S
+    top = float(np.max(np.abs(u))) if len(u) else 0.0
+    lo, hi = 0.0, top
+    if beyond_coulomb(u, omega, hi, moving) < target_v:
+        return hi, beyond_coulomb(u, omega, hi, moving)
+    for _ in range(40):  # the exposed torque grows with u0 (more of the command inside)
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if beyond_coulomb(u, omega, mid, moving) < target_v else (lo, mid)
+    return hi, beyond_coulomb(u, omega, hi, moving)
 
 
 def seen(path: Path, case: M.Case, cfg: Config) -> dict[str, float]:
@@ -257,6 +287,8 @@ def main() -> None:
     ap.add_argument("--cells", action="store_true", help="the per-cause plan (plan_cells: σv per cell)")
     ap.add_argument("--cache", type=Path, help="keep (and reuse) the recordings here")
     ap.add_argument("--no-gain", action="store_true", help="skip the held-out speed simulation")
+    exposed_help = "size dead zones by the torque the pilot recording exposes (deadzone_size)"
+    ap.add_argument("--exposed-deadzone", action="store_true", help=exposed_help)
     ap.add_argument("--summary", action="store_true", help="print the per-cause limits (--variant's)")
     ap.add_argument("--json", action="store_true", help="--summary as JSON")
     ap.add_argument("--figures", action="store_true", help="matrix.summarise's keys per variant")
@@ -288,6 +320,8 @@ def main() -> None:
             else:
                 print(L.table(rows, a.variant))
         return
+    global EXPOSED_DEADZONE
+    EXPOSED_DEADZONE = a.exposed_deadzone
     sizes = tuple(float(x) for x in a.sizes.split(","))
     if a.cells:
         cases = plan_cells(a.reps, sizes, a.seed, a.nulls)
