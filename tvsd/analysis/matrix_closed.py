@@ -189,12 +189,14 @@ EXPOSED_DEADZONE = False
 def deadzone_size(u: np.ndarray, omega: np.ndarray, target_v: float) -> tuple[float, float]:
     """The narrowest zone u0 whose torque beyond a Coulomb level (exposure.beyond_coulomb, in
     volts of command) on this command reaches `target_v`, and what it reaches: the torque causes'
-    base (m × 0.5·J N·m) in the dead zone's exposed units. Where no zone up to the command's
-    largest |u| reaches it (the command never enters one), the widest's, and the row says so."""
+    base (m × 0.5·J N·m) in the dead zone's exposed units. Zones up to half the command's 99 %
+    point: wider ones stop the drive (a 12 V zone on a 12 V drive: model_mismatch) or lie past
+    the doctor's scan (design.py: up to half the largest command). Where none reaches the
+    target, the widest, and the row's exposed_units says what it shows."""
     from tvsd.analysis.exposure import MOVING_RAD_S, beyond_coulomb
 
     moving = np.abs(omega) > MOVING_RAD_S
-    top = float(np.max(np.abs(u))) if len(u) else 0.0
+    top = 0.5 * float(np.quantile(np.abs(u), 0.99)) if len(u) else 0.0
     lo, hi = 0.0, top
     if beyond_coulomb(u, omega, hi, moving) < target_v:
         return hi, beyond_coulomb(u, omega, hi, moving)
