@@ -23,9 +23,11 @@ BINS = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, math.inf)
 
 
 def units(r: dict[str, Any]) -> float:
-    # A drift's size as refits over time see it (exposure.py `visible`), where the row has it.
+    """The effect's size as the recording shows it: a drift as refits over time see it
+    (exposure.py's `visible`), a dead zone as the part of its torque a Coulomb level cannot take
+    (`exposed_units`), where the row has them."""
     seen = r.get("seen") or {}
-    u = seen.get("visible", seen.get("units"))
+    u = seen.get("visible", seen.get("exposed_units", seen.get("units")))
     u = r["noise_units"] if u is None else u
     return float(u) if u is not None and math.isfinite(float(u)) else math.nan
 

@@ -363,10 +363,7 @@ def _instrumented_check(
             iv, _ = instrument.instrumented(prep, data.offset_term, rotary)
             iv = absorber.absorb(iv)
             iv.back_emf = measured.back_emf
-            if iv.X.shape == measured.X.shape:
-                m = iv.rows_mask
-                theta, *_ = np.linalg.lstsq(iv.X[m], iv.y[m], rcond=None)
-                iv.y = iv.y - (measured.X - iv.X) @ theta
+            iv.y = instrument.structural_left_side(iv, measured)
             memo["out"] = C.test_all(iv, seed=seed)
         out = memo["out"]
         return any(t.cause == cause and t.z > out.threshold for t in out.tested)

@@ -9,6 +9,10 @@ the effect: the pilot), state the size in units the test can see:
 - saturation: the share of samples whose |u| exceeds u_max, and the rms excess in noise units;
 - dead zone: the share of moving samples where the command is inside the zone, or pushes
   against the motion (there a dead zone and Coulomb friction differ: README, dead-zone width);
+  its width in noise units (`units`, u0·b_u) and the part of its torque a Coulomb level cannot
+  take (`exposed_units`: the rms of b_u·(clip(u, ±u0) − its mean per direction of motion) over
+  the moving samples) — what the data can show: 0 where the command never enters the zone
+  and never pushes against the motion, however wide the zone;
 - friction asymmetry: the share of moving samples in the less-used direction;
 - delay: b_u·rms(u(t) − u(t − τ)) in noise units (matrix.delay_torque) on the recorded command;
 - drift: the term's change over the run in noise units (R: Δ·b_u·rms u, kv: Δ·kv·rms ω,
@@ -58,6 +62,7 @@ def exposure(
         inside = moving & (mag < u0)
         out["share"] = float(np.mean(inside | against))
         out["units"] = u0 * b_u / jsv
+        out["exposed_units"] = b_u * beyond_coulomb(u, omega, u0, moving) / jsv
     elif e.name == "friction_asymmetry":
         pos = float(np.mean(moving & (omega > 0)))
         neg = float(np.mean(moving & (omega < 0)))
@@ -99,3 +104,18 @@ def _drift_visible(
     A = np.column_stack([um, wm, np.sign(wm), np.ones_like(wm)])
     coef, *_ = np.linalg.lstsq(A, d, rcond=None)
     return float(np.sqrt(np.mean((d - A @ coef) ** 2)))
+
+
+def beyond_coulomb(u: np.ndarray, omega: np.ndarray, u0: float, moving: np.ndarray) -> float:
+    """rms over the moving samples of clip(u, ±u0) less its mean per direction of motion: the
+    dead zone's missing command (u − (u − clip)) that one constant per direction, a Coulomb
+    level, does not absorb (V)."""
+    if not np.any(moving):
+        return 0.0
+    d = np.clip(u, -u0, u0)
+    resid = np.zeros_like(d)
+    for side in (omega > 0, omega < 0):
+        sel = moving & side
+        if np.any(sel):
+            resid[sel] = d[sel] - float(np.mean(d[sel]))
+    return float(np.sqrt(np.mean(resid[moving] ** 2)))

@@ -11,7 +11,8 @@ Variants: `ls` (least squares, the doctor's default), `iv` (two-stage least squa
 reference and, when recorded, identify's voltage excitation `u_exc` as instruments),
 `iv_ref` (the reference alone, as before u_exc was recorded), `ls0` (least squares as before this
 branch: every fold in the out-of-sample check, calibrate.heldout_gain; the line scan off the
-command's lines), `ls1` (the folds' rule on, the lines still the command's).
+command's lines), `ls1` (the folds' rule on, the lines still the command's), `ls2` (the
+instrumented confirmation with instrument.IDENTIFIED_ONLY and EXPECTED_MAPS: branch cldz).
 
     python -m tvsd.analysis.matrix_closed OUT.jsonl [--reps 15] [--nulls 30] [--sizes 3,10]
         [--seed 0] [--worker 0 --workers 1] [--variants ls,iv] [--reversal]
@@ -47,7 +48,7 @@ from tvsd.analysis import matrix as M
 from tvsd.causes import Effect, parse_effect
 from tvsd.config import Config, load_config
 
-VARIANTS = ("ls", "ls0", "ls1", "iv", "iv_ref")
+VARIANTS = ("ls", "ls0", "ls1", "ls2", "iv", "iv_ref")
 
 
 def plan(n_null: int, reps: int, sizes: tuple[float, ...], seed: int) -> list[M.Case]:
@@ -129,17 +130,21 @@ def analyse(path: Path, cfg: Config, variant: str) -> tuple[str, float, dict[str
         data = load(path, cfg)
         if variant == "iv_ref":
             data = dataclasses.replace(data, refs={k: v for k, v in data.refs.items() if k != "u_exc"})
-        from tvsd.analysis import calibrate
+        from tvsd.analysis import calibrate, instrument
 
         calibrate.SKIP_UNDETERMINED_FOLDS = variant != "ls0"
         calibrate.LINES_OF_REFERENCE = variant not in ("ls0", "ls1")
-        dg = diagnose(data, cfg.plant.v0, iv=variant not in ("ls", "ls0", "ls1"))
+        instrument.IDENTIFIED_ONLY = instrument.EXPECTED_MAPS = variant == "ls2"
+        dg = diagnose(data, cfg.plant.v0, iv=variant not in ("ls", "ls0", "ls1", "ls2"))
         calibrate.SKIP_UNDETERMINED_FOLDS = calibrate.LINES_OF_REFERENCE = True
+        instrument.IDENTIFIED_ONLY = instrument.EXPECTED_MAPS = False
         found = dg.cause
         why = {
             "z": {s.cause: round(float(s.z), 3) for s in dg.ranked},
             "threshold": round(float(dg.outcome.threshold), 3),
             "reason": dg.reason,
+            # which check refused a cause (verdict.WHY's codes): the gate, a refit, the instruments
+            "why_not": {s.cause: s.why_not[0] for s in dg.ranked if s.why_not},
         }
     except Exception as exc:  # a bad case is a result too (reported, not hidden)
         found = f"error: {type(exc).__name__}: {exc}"[:160]
@@ -152,7 +157,7 @@ def sized(case: M.Case, cfg: Config, tmp: Path, seconds: float, keep: bool = Fal
     quantile, as in open loop (matrix.saturation_size). From the drive limit, 0.97–0.90 ×
     u_max lay above every command of a scanning plant held with ≤ 40 % of the drive. `keep`: the
     pilot stays in `tmp` (a cache) and is reused."""
-    if case.cause != "saturation":
+    if case.cause != "saturation" and not (case.cause == "deadzone" and EXPOSED_DEADZONE):
         return case
     from tvsd.sim.record import record
 
@@ -161,12 +166,44 @@ def sized(case: M.Case, cfg: Config, tmp: Path, seconds: float, keep: bool = Fal
         record(cfg, pilot, "identify", seconds, (), case.seed, rps=case.rps)
     from tvsd.analysis.dataset import load
 
-    u = load(pilot, cfg).u
+    data = load(pilot, cfg)
+    u = data.u
     if not keep:
         pilot.unlink()
+    if case.cause == "deadzone":
+        omega = data.speed if data.speed is not None else np.gradient(data.position, data.t)
+        b_u = cfg.plant.kM * cfg.plant.ku / cfg.plant.R
+        u0, torque = deadzone_size(u, omega, case.size * 0.5 * cfg.plant.J / b_u)
+        units = torque * b_u / (cfg.plant.J * case.sigma_v)
+        return dataclasses.replace(case, effect=f"deadzone:u0={u0:.6g}", noise_units=units)
     u_max, excess = M.saturation_size(u, case.size)
     units = excess * cfg.plant.kM * cfg.plant.ku / cfg.plant.R / (cfg.plant.J * case.sigma_v)
     return dataclasses.replace(case, effect=f"saturation:u_max={u_max:.6g}", noise_units=units)
+
+
+# Opt-in (`--exposed-deadzone`, not measured yet): a closed-loop dead zone sized by what the pilot
+# recording exposes, not by u_max (README: 0.4 % of u_max per 1× gave 0–80 exposed noise units).
+EXPOSED_DEADZONE = False
+
+
+def deadzone_size(u: np.ndarray, omega: np.ndarray, target_v: float) -> tuple[float, float]:
+    """The narrowest zone u0 whose torque beyond a Coulomb level (exposure.beyond_coulomb, in
+    volts of command) on this command reaches `target_v`, and what it reaches: the torque causes'
+    base (m × 0.5·J N·m) in the dead zone's exposed units. Zones up to half the command's 99 %
+    point: wider ones stop the drive (a 12 V zone on a 12 V drive: model_mismatch) or lie past
+    the doctor's scan (design.py: up to half the largest command). Where none reaches the
+    target, the widest, and the row's exposed_units says what it shows."""
+    from tvsd.analysis.exposure import MOVING_RAD_S, beyond_coulomb
+
+    moving = np.abs(omega) > MOVING_RAD_S
+    top = 0.5 * float(np.quantile(np.abs(u), 0.99)) if len(u) else 0.0
+    lo, hi = 0.0, top
+    if beyond_coulomb(u, omega, hi, moving) < target_v:
+        return hi, beyond_coulomb(u, omega, hi, moving)
+    for _ in range(40):  # the exposed torque grows with u0 (more of the command inside)
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if beyond_coulomb(u, omega, mid, moving) < target_v else (lo, mid)
+    return hi, beyond_coulomb(u, omega, hi, moving)
 
 
 def seen(path: Path, case: M.Case, cfg: Config) -> dict[str, float]:
@@ -252,6 +289,8 @@ def main() -> None:
     ap.add_argument("--cells", action="store_true", help="the per-cause plan (plan_cells: σv per cell)")
     ap.add_argument("--cache", type=Path, help="keep (and reuse) the recordings here")
     ap.add_argument("--no-gain", action="store_true", help="skip the held-out speed simulation")
+    exposed_help = "size dead zones by the torque the pilot recording exposes (deadzone_size)"
+    ap.add_argument("--exposed-deadzone", action="store_true", help=exposed_help)
     ap.add_argument("--summary", action="store_true", help="print the per-cause limits (--variant's)")
     ap.add_argument("--json", action="store_true", help="--summary as JSON")
     ap.add_argument("--figures", action="store_true", help="matrix.summarise's keys per variant")
@@ -283,6 +322,8 @@ def main() -> None:
             else:
                 print(L.table(rows, a.variant))
         return
+    global EXPOSED_DEADZONE
+    EXPOSED_DEADZONE = a.exposed_deadzone
     sizes = tuple(float(x) for x in a.sizes.split(","))
     if a.cells:
         cases = plan_cells(a.reps, sizes, a.seed, a.nulls)
