@@ -1,6 +1,7 @@
 """The README and docs/ as a stranger reads them: every relative link resolves (file, and heading
 anchor where one is given), and every `tvsctl …` / `tvsd …` line of the README's `sh` blocks is
-accepted by the real argument parsers (nothing runs: argparse only, no daemon, fast)."""
+accepted by the real argument parsers (nothing runs: argparse only, no daemon; the links take < 1 s,
+the parsers' imports 10-15 s on an idle 2-core machine, so those are marked slow)."""
 
 from __future__ import annotations
 
@@ -103,6 +104,7 @@ def test_the_readme_shows_commands() -> None:
     assert len(_commands()) > 30
 
 
+@pytest.mark.slow  # the parsers import each command's module (numba kernels): 6-45 s in all under load
 @pytest.mark.parametrize("argv", _commands(), ids=lambda a: " ".join(a)[:70])
 def test_readme_command_parses(argv: list[str]) -> None:
     prog, *args = argv
