@@ -134,7 +134,8 @@ def test_a_blocked_event_loop_starves_neither_heartbeat_nor_states(
         try:
             await asyncio.sleep(0.2)
             expiries = (await link.request_stats(timeout_s=5.0)).watchdog_expiries
-            link.reset_peaks()  # the block's, not the start-up's
+            faults = len(seen.faults)  # the block's, not the start-up's (a stall of this loaded machine)
+            link.reset_peaks()
             t0 = time.monotonic()
             t1 = t0 + 2 * WATCHDOG_MS / 1e3
             if block == "sleep":
@@ -155,7 +156,8 @@ def test_a_blocked_event_loop_starves_neither_heartbeat_nor_states(
             f"{st.heartbeat_late_max_s * 1e3:.1f} ms; {len(during)} states in the block, longest "
             f"gap {max(gaps) * 1e3:.1f} ms"
         )
-        assert not seen.watchdog_cuts() and expiries == 0, (seen.faults, expiries)
+        cuts = [f for f in seen.faults[faults:] if f.name == "watchdog_expired"]
+        assert not cuts and expiries == 0, (seen.faults, expiries)
         assert st.heartbeat_gap_max_s < WATCHDOG_MS / 1e3, st
         assert st.link_losses == 0 and False not in seen.links
         assert max(gaps) < LINK_TIMEOUT_S, gaps

@@ -51,6 +51,7 @@ from tvsd.hw.mcu.events import LinkStats
 from tvsd.hw.mcu.framing import Frame, FrameDecoder, encode_frame
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.shared_tx import BUSY, IO_SEQ_MODULUS, KERNEL_SEQ, SharedTx
+from tvsd.hw.mcu.tty_probe import TtyProbe
 
 log = logging.getLogger("tvsd.hw.mcu.link")  # the link's log, whichever part writes it
 
@@ -115,6 +116,7 @@ class LinkIo:
         self._live_count: int | None = None
         self._wake_r, self._wake_w = -1, -1
         self._ep: select.epoll | None = None  # this thread's, while it runs
+        self._probe = TtyProbe(self._wake)  # the loss check's look at the tty, off this thread
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -125,12 +127,14 @@ class LinkIo:
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_w, False)
         self._stop.clear()
+        self._probe.start(fd)
         self._thread = threading.Thread(target=self._run, name="tvsd-mcu-io", daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
         """Stop the thread (joined), then forget the port; the caller closes it."""
         self._stop.set()
+        self._probe.stop()
         self._wake()
         th, self._thread = self._thread, None
         if th is not None and th is not threading.current_thread():
@@ -239,7 +243,7 @@ class LinkIo:
             timeout = IDLE_WAKE_S
             if self._heartbeats_on and not self._kernel_hb:
                 timeout = min(timeout, self._next_hb - now)
-            if self.stats.link_up:
+            if self.stats.link_up and not self._probe.busy:  # busy: it wakes us
                 timeout = min(timeout, self._last_rx + self.settings.link_lost_s - now)
             if self._tx_pending:  # 0.1 ms when the kernel ends its torn frame next tick
                 timeout = min(timeout, 1e-4 if self.shared.torn_by_kernel else TX_RETRY_S)
@@ -334,9 +338,15 @@ class LinkIo:
         if fd is None or not self.stats.link_up:
             return
         if self._heartbeats_on and not self._kernel_hb:
-            # this thread owns the heartbeat: look without waiting for the flip-buffer work (a
-            # zero-timeout epoll); its frames, if held there, bring the link back when they come
-            ready = self._ep is not None and any(f == fd for f, _ in self._ep.poll(0))
+            # this thread owns the heartbeat: the look that waits for the flip-buffer work is the
+            # probe's (tvsd.hw.mcu.tty_probe); while it waits, the tty holds bytes for us: alive
+            if self._probe.busy:
+                return
+            answer = self._probe.answer(since=self._last_rx)
+            if answer is None:
+                self._probe.ask()
+                return
+            ready = answer
         else:  # select on purpose: it waits for that work, whose frames, if any, prove the link
             ready = bool(select.select([fd], [], [], 0)[0])  # alive (the kernel sends heartbeats)
         if ready and not self._read(fd):
