@@ -206,6 +206,32 @@ def test_a_stopped_kernel_stops_the_heartbeat_and_the_firmware_cuts(
     asyncio.run(main())
 
 
+def test_a_silent_link_is_called_lost_while_the_io_thread_owns_the_heartbeat(
+    vmcu: vm.VirtualMcu, runner: Runner
+) -> None:
+    """The loss check's look at the tty (which waits for the kernel's flip-buffer worker) runs on
+    the probe thread when the I/O thread sends the heartbeats (tvsd.hw.mcu.tty_probe): a cut cable
+    (nothing either way) is still called lost, the heartbeats go on meanwhile, and the next frame
+    brings the link back. Outcomes only: the loss's timing is test_mcu_link's."""
+
+    async def main() -> None:
+        seen = Seen()
+        link = await connect(vmcu.port, runner, seen)
+        try:
+            await until(lambda: seen.links[-1:] == [True], 5.0, "the link up")
+            vmcu.cable_cut = True
+            await until(lambda: seen.links[-1:] == [False], 5.0, "the link called lost")
+            sent = link.stats().heartbeats
+            await until(lambda: link.stats().heartbeats > sent + 2, 5.0, "heartbeats while lost")
+            vmcu.cable_cut = False
+            await until(lambda: seen.links[-1:] == [True], 5.0, "the link back")
+            assert link.stats().link_losses == 1
+        finally:
+            await link.close()
+
+    asyncio.run(main())
+
+
 def test_a_full_event_queue_drops_and_counts_but_keeps_link_changes() -> None:
     """The I/O thread never waits for the loop: past EVENT_QUEUE waiting events a new one is
     refused and counted; a link change always goes in; the loop is woken once for all of them."""
