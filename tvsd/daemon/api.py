@@ -30,6 +30,11 @@ if TYPE_CHECKING:
     from tvsd.daemon.app import Daemon
 
 STATUS_REUSE_S = 0.02  # a status younger than this is answered again (its age is in it)
+# A command that comes while the devices are still coming up (`tvsd --sil &` then `tvsctl speed 25`
+# at once) waits for them this long, then is answered as the state is: under tvsctl's 5 s call
+# timeout, so the user gets the daemon's answer, not a client time-out. Polled at STARTING_POLL_S.
+STARTING_WAIT_S = 4.0
+STARTING_POLL_S = 0.02
 
 
 def _rpc_error(exc: TvsdError) -> RpcError:
@@ -46,9 +51,19 @@ class Api:
             name.removeprefix("api_"): getattr(self, name) for name in dir(self) if name.startswith("api_")
         }
 
-    def _refuse_in_fault(self) -> None:
+    async def _refuse_in_fault(self) -> None:
+        """Refuse a command the state does not allow; while the devices are still coming up, wait
+        for them first (at most STARTING_WAIT_S), so a command typed right after the daemon's
+        start is carried out, not refused."""
+        deadline = time.monotonic() + STARTING_WAIT_S
+        while self.d.state == DaemonState.STARTING and time.monotonic() < deadline:
+            await asyncio.sleep(STARTING_POLL_S)
         if self.d.state == DaemonState.STARTING:
-            raise RpcError(STATE_ERROR, "the devices are coming up (MCU link, IMU): retry in a second")
+            raise RpcError(
+                STATE_ERROR,
+                f"the devices are still coming up after {STARTING_WAIT_S:g} s (MCU link, IMU): "
+                "see `tvsctl status` and the daemon's log, then retry",
+            )
         if self.d.state == DaemonState.FAULT:
             raise RpcError(
                 STATE_ERROR,
@@ -68,7 +83,7 @@ class Api:
         return self._status[1]
 
     async def api_speed(self, rps: float) -> dict[str, Any]:
-        self._refuse_in_fault()
+        await self._refuse_in_fault()
         max_rps = self.d.cfg.daemon.max_rps
         if not math.isfinite(rps) or abs(rps) > max_rps:
             raise RpcError(
@@ -80,7 +95,7 @@ class Api:
         return {"rps_setpoint": rps}
 
     async def api_scan_start(self) -> dict[str, Any]:
-        self._refuse_in_fault()
+        await self._refuse_in_fault()
         if abs(self.d.measured_rps) < 1.0:
             raise RpcError(STATE_ERROR, "the aperture is not spinning: set a speed first (tvsctl speed 25)")
         try:
@@ -208,7 +223,7 @@ class Api:
         """A bounded excitation on top of spinning/scanning, recorded (tvsd/daemon/identify.py);
         amplitudes and limits from the config's identify: section. Returns at once: poll
         identify_status."""
-        self._refuse_in_fault()
+        await self._refuse_in_fault()
         run = IdentifyRun(self.d, settings_for(self.d.cfg.identify, seconds=seconds, kinds=kinds, seed=seed))
         self.d.start_identify(run)
         return run.to_json()

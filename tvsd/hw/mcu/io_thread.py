@@ -4,8 +4,16 @@ Why a thread and not the event loop: the heartbeat arms the firmware's watchdog 
 frames feed the control thread (a PWM frame answers each batch). On the event loop they waited
 for whatever else the loop did: under 2 CPU hogs, 50 RPC clients and a 500-call batch every 3 s
 the SIL daemon saw 53 firmware watchdog cuts and 14 link losses in 60 s. Here only this thread
-runs them: it sleeps in ``select`` on the port (GIL released), wakes for bytes, for the next
+runs them: it sleeps in ``epoll`` on the port (GIL released), wakes for bytes, for the next
 heartbeat or for the loss deadline, and hands the decoded frames to the receiver on this thread.
+
+Why epoll, edge-triggered, and not select/poll: a poll of a tty that finds no input waits for the
+kernel's tty flip-buffer work (``n_tty_poll`` -> ``tty_buffer_flush_work``), a normal-priority
+kworker, uninterruptibly. Under CPU load that work, preempted while the MCU's frames keep coming,
+did not finish for 100-215 ms, and this SCHED_FIFO thread sat in ``select`` (state D) as long:
+no heartbeat, no state, no stop (docs/measurements/wdflake.md). An edge-triggered epoll entry is
+polled only after the line discipline's wake-up, when input is there: a timer wake never waits for
+that worker, and bytes are read as each part is handed over, not when the whole work ends.
 Other Python code delays it only by holding the GIL (it is handed over every
 ``sys.getswitchinterval()``; the daemon sets 1 ms) or, under ``--realtime``, not at all by CPU
 load: the thread runs SCHED_FIFO between the control thread and the event loop.
@@ -43,6 +51,7 @@ from tvsd.hw.mcu.events import LinkStats
 from tvsd.hw.mcu.framing import Frame, FrameDecoder, encode_frame
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.shared_tx import BUSY, IO_SEQ_MODULUS, KERNEL_SEQ, SharedTx
+from tvsd.hw.mcu.tty_probe import TtyProbe
 
 log = logging.getLogger("tvsd.hw.mcu.link")  # the link's log, whichever part writes it
 
@@ -50,7 +59,9 @@ READ_CHUNK = 65536
 # SCHED_FIFO priority the daemon asks for this thread under --realtime: below the control thread
 # (80), above the event loop (40)
 IO_THREAD_PRIORITY = 60
-IDLE_WAKE_S = 0.05  # the longest select: a stop request or a changed schedule is never later
+IDLE_WAKE_S = 0.05  # the longest wait: a stop request or a changed schedule is never later
+TX_RETRY_S = 0.001  # pending bytes the line would not take: tried again this often (no EPOLLOUT:
+# its poll would wait for the flip-buffer work as select did)
 
 
 def request_fifo(priority: int) -> str:
@@ -104,6 +115,8 @@ class LinkIo:
         self._last_hb = math.nan
         self._live_count: int | None = None
         self._wake_r, self._wake_w = -1, -1
+        self._ep: select.epoll | None = None  # this thread's, while it runs
+        self._probe = TtyProbe(self._wake)  # the loss check's look at the tty, off this thread
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -114,12 +127,14 @@ class LinkIo:
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_w, False)
         self._stop.clear()
+        self._probe.start(fd)
         self._thread = threading.Thread(target=self._run, name="tvsd-mcu-io", daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
         """Stop the thread (joined), then forget the port; the caller closes it."""
         self._stop.set()
+        self._probe.stop()
         self._wake()
         th, self._thread = self._thread, None
         if th is not None and th is not threading.current_thread():
@@ -205,43 +220,52 @@ class LinkIo:
     def _run(self) -> None:
         if self.priority is not None:
             self.realtime = request_fifo(self.priority)
+        fd = self._fd
+        if fd is None:
+            return
         try:
-            while not self._stop.is_set():
-                fd = self._fd
-                if fd is None:
-                    return
-                now = time.monotonic()
-                timeout = IDLE_WAKE_S
-                if self._heartbeats_on and not self._kernel_hb:
-                    timeout = min(timeout, self._next_hb - now)
-                if self.stats.link_up:
-                    timeout = min(timeout, self._last_rx + self.settings.link_lost_s - now)
-                if self._tx_pending and self.shared.torn_by_kernel:
-                    timeout = min(timeout, 1e-4)  # the kernel ends its frame next tick
-                    wlist = []
-                else:
-                    wlist = [fd] if self._tx_pending else []
-                try:
-                    readable, writable, _ = select.select([fd, self._wake_r], wlist, [], max(0.0, timeout))
-                except (OSError, ValueError):  # closed under us: stopping
-                    return
-                if self._wake_r in readable:
-                    with contextlib.suppress(OSError):
-                        os.read(self._wake_r, 64)
-                if self._stop.is_set():
-                    return
-                if fd in readable and not self._read(fd):
-                    return
-                if writable or self._tx_pending:
-                    self.flush()
-                now = time.monotonic()
-                if self._heartbeats_on and not self._kernel_hb and now >= self._next_hb:
-                    self._heartbeat(now)
-                if self.stats.link_up and now >= self._last_rx + self.settings.link_lost_s:
-                    self._check_link()
+            with select.epoll() as ep:
+                ep.register(fd, select.EPOLLIN | select.EPOLLET)  # see the module's docstring
+                ep.register(self._wake_r, select.EPOLLIN)
+                self._ep = ep
+                self._loop(ep, fd)
         except Exception:  # a bug here must say so, not silently stop the heartbeat
             log.exception("MCU link I/O thread failed")
             self.on_gone("the link's I/O thread failed (a bug: see the log)")
+        finally:
+            self._ep = None
+
+    def _loop(self, ep: select.epoll, fd: int) -> None:
+        while not self._stop.is_set():
+            if self._fd is None:
+                return
+            now = time.monotonic()
+            timeout = IDLE_WAKE_S
+            if self._heartbeats_on and not self._kernel_hb:
+                timeout = min(timeout, self._next_hb - now)
+            if self.stats.link_up and not self._probe.busy:  # busy: it wakes us
+                timeout = min(timeout, self._last_rx + self.settings.link_lost_s - now)
+            if self._tx_pending:  # 0.1 ms when the kernel ends its torn frame next tick
+                timeout = min(timeout, 1e-4 if self.shared.torn_by_kernel else TX_RETRY_S)
+            try:
+                events = ep.poll(max(0.0, timeout))
+            except (OSError, ValueError):  # closed under us: stopping
+                return
+            ready = {f for f, _ in events}
+            if self._wake_r in ready:
+                with contextlib.suppress(OSError):
+                    os.read(self._wake_r, 64)
+            if self._stop.is_set():
+                return
+            if fd in ready and not self._read(fd):
+                return
+            if self._tx_pending:
+                self.flush()
+            now = time.monotonic()
+            if self._heartbeats_on and not self._kernel_hb and now >= self._next_hb:
+                self._heartbeat(now)
+            if self.stats.link_up and now >= self._last_rx + self.settings.link_lost_s:
+                self._check_link()
 
     def _heartbeat(self, now: float) -> None:
         st = self.stats
@@ -264,14 +288,20 @@ class LinkIo:
 
     def _read(self, fd: int) -> bool:
         """Read and hand over what is waiting; False once the port is gone."""
+        data = b""
         try:
-            data = os.read(fd, READ_CHUNK)
+            while True:  # edge-triggered: take all there is (a full chunk: more may wait)
+                chunk = os.read(fd, READ_CHUNK)
+                data += chunk
+                if len(chunk) < READ_CHUNK:
+                    break
         except BlockingIOError:
-            return True
+            if not data:
+                return True
         except OSError as exc:
             self._gone(f"read failed: {exc.strerror}")
             return False
-        if not data:  # select said readable: end of file
+        if not data:  # epoll said readable: end of file
             self._gone("end of file")
             return False
         now = time.monotonic()
@@ -307,7 +337,19 @@ class LinkIo:
         fd = self._fd
         if fd is None or not self.stats.link_up:
             return
-        if select.select([fd], [], [], 0)[0] and not self._read(fd):
+        if self._heartbeats_on and not self._kernel_hb:
+            # this thread owns the heartbeat: the look that waits for the flip-buffer work is the
+            # probe's (tvsd.hw.mcu.tty_probe); while it waits, the tty holds bytes for us: alive
+            if self._probe.busy:
+                return
+            answer = self._probe.answer(since=self._last_rx)
+            if answer is None:
+                self._probe.ask()
+                return
+            ready = answer
+        else:  # select on purpose: it waits for that work, whose frames, if any, prove the link
+            ready = bool(select.select([fd], [], [], 0)[0])  # alive (the kernel sends heartbeats)
+        if ready and not self._read(fd):
             return
         if self.stats.link_up and time.monotonic() >= self._last_rx + self.settings.link_lost_s:
             self._set_link(False)  # the next frame brings it back
