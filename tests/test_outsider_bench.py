@@ -16,6 +16,7 @@ import json
 import math
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +26,7 @@ from scipy.signal import lfilter
 from scipy.stats import binom
 
 from tvsd.analysis.dataset import LAG_SAMPLES, speed_lag
-from tvsd.analysis.noise import colour_test
+from tvsd.analysis.noise import NoiseReport, colour_test, spectral_cause
 
 TVSCTL = str(Path(sys.executable).parent / "tvsctl")
 DATA = Path(__file__).parent / "data" / "outsider"
@@ -113,3 +114,13 @@ def test_stored_outsider_recording(tmp_path: Path, name: str) -> None:
     assert got["cause"] == truth["name"]
     if truth["name"] == "delay":
         assert got["effect"]["delay_s"] == pytest.approx(truth["delay_s"], abs=1 / 500)
+
+
+def test_a_peak_at_the_bands_lower_edge_is_not_a_mode() -> None:
+    """An outsider null's residual had a 'mode' at 0.555 Hz (Q 8e5, peak ratio 46.9 > 45): the
+    band starts at 0.5 Hz and the bins are 0.25 Hz, so the peak had no lower flank; the same
+    statistics at 10 Hz still name a resonance."""
+    freq = np.arange(0, 125.01, 0.25)
+    edge = NoiseReport(0.5, 1.1, 0.3, 0.01, 0.1, freq, np.ones_like(freq), 44.5, 0.555, 8.4e5, 1.0, 46.9)
+    assert spectral_cause(edge, 1e-3) is None
+    assert spectral_cause(replace(edge, peak_hz=10.0), 1e-3) == "resonance"

@@ -28,6 +28,7 @@ from scipy.signal import get_window, welch
 from scipy.stats import chi2
 
 SEGMENT_S = 4.0
+BAND_LOW_HZ = 0.5  # the spectral tests' lowest frequency
 PEAK_Q = 5.0  # a spectral peak this sharp is a structural mode; broader is a low-pass colour
 # The peak against the flat floor (3 more parameters, its frequency scanned): the Whittle ratio
 # on a 50 %-overlapped Welch spectrum is not χ²₃. Calibrated on 700 simulated null residuals
@@ -60,6 +61,7 @@ def spectral_cause(report: NoiseReport, p_value: float) -> str | None:
     `p_value`; else None."""
     if (
         report.peak_q >= PEAK_Q
+        and _flanked(report)
         and report.peak_white_lr > PEAK_WHITE_LR
         and report.peak_lr > chi2.isf(p_value, 2)
     ):
@@ -67,6 +69,14 @@ def spectral_cause(report: NoiseReport, p_value: float) -> str | None:
     if report.colour_p < p_value:
         return "colored_noise"
     return None
+
+
+def _flanked(report: NoiseReport) -> bool:
+    """Whether the peak has bins of the band on both sides (two bins above its lower edge): at
+    the edge a Lorentzian fits a low-frequency rise as well as a mode, and no mode is told from
+    it (an outsider null's 'mode' at 0.555 Hz, Q 8e5, in a band that starts at 0.5 Hz)."""
+    df = float(report.freq[1] - report.freq[0]) if len(report.freq) > 1 else 0.0
+    return report.peak_hz >= BAND_LOW_HZ + 2 * df
 
 
 def on_declared_line(report: NoiseReport, lines_hz: tuple[float, ...]) -> bool:
@@ -178,7 +188,7 @@ def _welch(residual: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray
 
 
 def _in_band(f: np.ndarray, p: np.ndarray, band_hz: float) -> tuple[np.ndarray, np.ndarray, float, float]:
-    m = (f >= 0.5) & (f <= 0.5 * band_hz)  # the band filter is flat to 1 % up to half its corner
+    m = (f >= BAND_LOW_HZ) & (f <= 0.5 * band_hz)  # the band filter is flat to 1 % up to half its corner
     fm, pm = f[m], p[m]
     a0 = float(np.median(pm[: max(3, len(pm) // 10)]))
     b0 = max(float(np.median(pm[-max(3, len(pm) // 10) :])) / fm[-1] ** 2, 1e-30)
