@@ -1,6 +1,7 @@
 """Generate the outsider bench's seeded set (tests/outsider_bench.py) and run the doctor on it.
 
-    nice -n 5 .venv/bin/python scripts/outsider_run.py run /tmp/outsider/set OUT.jsonl --seed 7 [--worker 0 --workers 2]
+    nice -n 5 .venv/bin/python scripts/outsider_run.py run /tmp/outsider/set2 OUT.w0.jsonl \
+        --seed 7 --reps 2 --nulls 30 [--worker 0 --workers 2]
     .venv/bin/python scripts/outsider_run.py summary 'OUT*.jsonl' [--markdown]
 
 `run` writes each recording once (kept in the set folder: a rerun reuses it), runs
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import glob
 import json
+import resource
 import subprocess
 import sys
 import time
@@ -24,7 +26,7 @@ import numpy as np
 from scipy.stats import beta
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-import outsider_bench as ob  # noqa: E402
+import outsider_bench as ob
 
 TVSCTL = str(Path(sys.executable).parent / "tvsctl")
 
@@ -51,9 +53,10 @@ def run(a: argparse.Namespace) -> int:
         path = a.set / f"{s.name}.csv"
         if not path.exists():
             ob.write(path, s, ob.make(s))
-        t0 = time.monotonic()
+        t0, c0 = time.monotonic(), resource.getrusage(resource.RUSAGE_CHILDREN)
         p = subprocess.run([TVSCTL, "analyze", str(path), "--json"], capture_output=True, text=True)
-        wall = time.monotonic() - t0
+        wall, c1 = time.monotonic() - t0, resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)  # the load does not inflate it
         try:
             ans = json.loads(p.stdout)
         except json.JSONDecodeError:
@@ -61,7 +64,8 @@ def run(a: argparse.Namespace) -> int:
         row = {"name": s.name, "spec": ob.truth_of(s), "cause": ans.get("cause"), "effect": ans.get("effect"),
                "causes": [c.get("cause") for c in ans.get("causes", [])],
                "candidates": [(c["cause"], round(c["score"], 2)) for c in ans.get("candidates", [])[:4]],
-               "error": ans.get("error"), "wall_s": round(wall, 2), "rc": p.returncode}  # fmt: skip
+               "error": ans.get("error"), "wall_s": round(wall, 2), "cpu_s": round(cpu, 2),
+               "rc": p.returncode}  # fmt: skip
         with a.out.open("a") as fh:
             fh.write(json.dumps(row) + "\n")
         print(s.name, cause, m, "->", row["cause"], f"{wall:.1f}s", flush=True)
@@ -69,7 +73,12 @@ def run(a: argparse.Namespace) -> int:
 
 
 def summary(a: argparse.Namespace) -> int:
-    rows = [json.loads(line) for f in sorted(glob.glob(a.pattern)) for line in open(f) if line.strip()]
+    rows = [
+        json.loads(line)
+        for f in sorted(glob.glob(a.pattern))
+        for line in Path(f).read_text().splitlines()
+        if line.strip()
+    ]
     per: dict[tuple[str, float], list[bool]] = defaultdict(list)
     wrong: dict[str, Counter[str]] = defaultdict(Counter)
     nulls = [r for r in rows if r["spec"]["cause"] == "none"]
@@ -102,11 +111,10 @@ def summary(a: argparse.Namespace) -> int:
         for r in rows:
             g2[r["spec"][key]].append(r["cause"] == r["spec"]["cause"])
         print(f"by {key}: " + ", ".join(f"{k}: {sum(v)}/{len(v)}" for k, v in sorted(g2.items())))
-    walls = sorted(r["wall_s"] for r in rows)
-    if walls:
-        print(
-            f"wall time per file: median {walls[len(walls) // 2]:.1f} s, max {walls[-1]:.1f} s, n={len(walls)}"
-        )
+    for key in ("wall_s", "cpu_s"):
+        v = sorted(r[key] for r in rows if key in r)
+        if v:
+            print(f"{key} per file: median {v[len(v) // 2]:.1f} s, max {v[-1]:.1f} s, n={len(v)}")
     return 0
 
 
