@@ -13,7 +13,6 @@ sample, it acts as a delay of L/R (left out, a noise-free recording shows it as 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,9 +21,6 @@ import numpy as np
 from tvsd.config import Config
 from tvsd.errors import DataFileError
 from tvsd.recording.csvfile import read as read_recording
-
-# A recorded speed this many samples off the position's derivative is not used (speed_lag).
-LAG_SAMPLES = 0.25
 
 
 @dataclass(frozen=True)
@@ -106,56 +102,24 @@ def load(path: Path, cfg: Config) -> Dataset:
         b_u, b_omega, lag = 1.0, 0.0, 0.0
     linear = unit == "N"
     refs = {k: v for k, v in rec.extra.items() if k in ("omega_ref", "phi_ref", "u_exc")}
-    meta = dict(rec.meta)
-    speed: np.ndarray | None = rec.omega
-    lag = speed_lag(rec.omega, rec.phi, rec.sample_rate_hz) if rec.phi_measured else math.nan
-    if abs(lag) >= LAG_SAMPLES:
-        speed = None  # prep differentiates φ itself, zero-phase
-        meta["omega_derived"] = f"omega lags phi's derivative by {lag:.2f} samples: speed taken from phi"
     return Dataset(
         name=path.name,
         t=rec.t,
         u=u,
         position=rec.phi,
-        speed=speed,
+        speed=rec.omega,
         sample_rate_hz=rec.sample_rate_hz,
         b_u=b_u,
         b_omega=b_omega,
         units=LINEAR if linear else ROTARY,
         offset_term=unit in ("A", "N*m", "N"),
         lag_s=lag,
-        meta=meta,
+        meta=dict(rec.meta),
         path=path,
         u_unit="V" if unit == "duty" else unit,
         refs=refs,
         excitation_hz=rec.excitation_hz,
     )
-
-
-def speed_lag(omega: np.ndarray, phi: np.ndarray, rate_hz: float) -> float:
-    """How many samples the recorded speed lags the position's zero-phase derivative: the slope of
-    their cross-spectrum's phase over the bins where they are coherent (≥ 0.9) below 0.1·fs
-    (the median of each bin's phase / angular frequency).
-
-    A sampled instantaneous speed: 0. An encoder-only bench's first difference (φ[k] − φ[k−1])·fs:
-    the mean over the last period, +0.5 (−0.5 the forward one); a tach's anti-alias RC: its time
-    constant. The doctor's equation needs the speed at the position's instants: a lag of half a
-    sample reads as a `delay` of T/2 (1 ms at 500 Hz). NaN when nothing is coherent."""
-    from scipy.signal import coherence, csd
-
-    n = len(omega)
-    if n < 64 or not np.any(omega):
-        return math.nan
-    dphi = np.gradient(phi) * rate_hz
-    nper = min(n, 1024)
-    f, pxy = csd(dphi, omega, fs=rate_hz, nperseg=nper)
-    _, coh = coherence(dphi, omega, fs=rate_hz, nperseg=nper)
-    # From the third bin up (the lowest ones hold the staircase's leakage), the median of the
-    # bins' own lags: a few bins' leakage cannot move it.
-    m = (f >= 2 * f[1]) & (f <= 0.1 * rate_hz) & (coh >= 0.9)
-    if np.count_nonzero(m) < 3:
-        return math.nan
-    return float(np.median(-np.angle(pxy[m]) / (2 * np.pi * f[m] / rate_hz)))
 
 
 def load_emps(path: Path) -> Dataset:
