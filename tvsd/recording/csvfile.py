@@ -4,6 +4,7 @@
     # sample_rate_hz: 1000
     # <key>: <value>            optional metadata
     # excitation_hz: 0.2 0.4 …  optional: the lines the excitation was designed with (Hz)
+    # encoder_counts_per_rev: N optional: φ is an encoder's count × 2π/N (kept in meta)
     t,u,omega,phi[,more...]     SI: s, V, rad/s, rad (phi optional: integrated from omega)
 
 A bad file raises DataFileError with one line naming the file, the row (1-based line of the file)

@@ -1,0 +1,105 @@
+"""The model doctor on recordings tvsd's own simulator did not make (tests/outsider_bench.py: its
+own RK4 plant, encoder quantisation, PWM steps, inner current loops, heavy-tailed noise).
+
+What each test pins (docs/measurements/outsider.md has the batch these came from):
+- an encoder's quantisation, f⁴ in the residual, is part of the flat null of the colour test (it
+  read as `colored_noise` on 4 of 4 encoder nulls);
+- a spectral peak at the band's lower edge is not a mode;
+- end to end: seeded outsider nulls are `none` and large effects are named.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import outsider_bench as ob
+import pytest
+from scipy.stats import binom
+
+from tvsd.analysis.noise import NoiseReport, colour_test, spectral_cause
+
+TVSCTL = str(Path(sys.executable).parent / "tvsctl")
+DATA = Path(__file__).parent / "data" / "outsider"
+
+
+@pytest.mark.slow
+def test_encoder_quantisation_is_not_colour() -> None:
+    """Flat vibration + an encoder's quantisation (white in φ, so twice differenced: f⁴) as the
+    doctor's 250 Hz residual rows, quantisation ≥ the vibration at the band's top. 20 seeds: the
+    count of p < 1 % stays within binomial(20, 1 %)'s 99.9 % point (2). Without the f⁴ term in the
+    flat shape every one of them was coloured (p ≪ 1e-3)."""
+    ps = []
+    for s in range(20):
+        g = np.random.default_rng(500 + s)
+        n = 7500
+        x = g.standard_normal(n) + 0.8 * np.diff(g.standard_normal(n + 2), 2) * (1 + s % 3)
+        ps.append(colour_test(x, 250.0, 100.0)[1])
+    assert np.count_nonzero(np.array(ps) < 0.01) <= binom.ppf(0.999, 20, 0.01)
+
+
+def _analyze(path: Path) -> dict:
+    p = subprocess.run([TVSCTL, "analyze", str(path), "--json"], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    return json.loads(p.stdout)
+
+
+# Seeded outsider cases (seed, cause, size): a mix of units (V, duty, A, N·m), sensors (encoder
+# difference, tach); 1 kHz and 20 s each so that the test stays under a minute. Sizes 20× the
+# generator's base, of causes named in every 20× case of the measured batch (imbalance, delay:
+# docs/measurements/outsider.md; deadzone was not: 1 of 2, and seed 91004 as a dead zone is `none`).
+# 91001 (a current drive, inner loop 0.5 ms, ω the encoder's difference: half a sample late) reads
+# as a `delay`: the known gap of docs/measurements/outsider.md ("lags below a sample"), kept here
+# strict so that the fix shows.
+LAG_GAP = pytest.mark.xfail(strict=True, reason="sub-sample lags add up to a named delay (outsider.md)")
+CASES = [
+    pytest.param(91001, "none", 0.0, marks=LAG_GAP),
+    (91002, "none", 0.0),
+    (91003, "imbalance", 20.0),
+    (91004, "delay", 20.0),
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("seed", "cause", "size"), CASES)
+def test_outsider_case_is_named(tmp_path: Path, seed: int, cause: str, size: float) -> None:
+    """Nulls: the doctor's false-alarm rate is set at α = 1 % per file by its bootstrap (and the
+    colour test's χ² at 1e-3), so a null named anything else fails at a 1 % chance per seed — the
+    seeds are fixed, so the outcome is too. Effects at 20× are far above the limits measured."""
+    s = ob.draw(seed, cause, size, closed=False)
+    s.seconds, s.fs = 20.0, 1000.0
+    path = tmp_path / f"{s.name}.csv"
+    ob.write(path, s, ob.make(s))
+    assert _analyze(path)["cause"] == cause
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["null-encoder-500hz", "delay-encoder-500hz"])
+def test_stored_outsider_recording(tmp_path: Path, name: str) -> None:
+    """Two stored outsider recordings (500 Hz, speed = the encoder's backward difference, one of
+    them with a 10 ms transport delay): the null is `none`; the delay is named between its 10 ms
+    and 1.5 samples more: the doctor reports the whole lag, and this recording adds half a sample
+    (its speed is the mean over the last period), L/R and the encoder's early read (< 0.3 ms)."""
+    src = DATA / f"{name}.csv.gz"
+    path = tmp_path / f"{name}.csv"
+    path.write_bytes(gzip.decompress(src.read_bytes()))
+    truth = json.loads((DATA / "truth.json").read_text())[name]
+    got = _analyze(path)
+    assert got["cause"] == truth["name"]
+    if truth["name"] == "delay":
+        assert truth["delay_s"] <= got["effect"]["delay_s"] <= truth["delay_s"] + 1.5 / 500
+
+
+def test_a_peak_at_the_bands_lower_edge_is_not_a_mode() -> None:
+    """An outsider null's residual had a 'mode' at 0.555 Hz (Q 8e5, peak ratio 46.9 > 45): the
+    band starts at 0.5 Hz and the bins are 0.25 Hz, so the peak had no lower flank; the same
+    statistics at 10 Hz still name a resonance."""
+    freq = np.arange(0, 125.01, 0.25)
+    edge = NoiseReport(0.5, 1.1, 0.3, 0.01, 0.1, freq, np.ones_like(freq), 44.5, 0.555, 8.4e5, 1.0, 46.9)
+    assert spectral_cause(edge, 1e-3) is None
+    assert spectral_cause(replace(edge, peak_hz=10.0), 1e-3) == "resonance"
