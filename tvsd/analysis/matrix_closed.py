@@ -32,6 +32,7 @@ the same files, and `--summary` prints matrix_open's table (tvsd.analysis.matrix
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import glob
 import json
@@ -229,12 +230,23 @@ def run(
     """`cache`: keep the recordings (and a clip's pilot) there and reuse them, so a rule can be
     re-judged on the same files; `gain=False` skips the held-out speed simulation, which runs after
     the cause is decided and changes no answer (matrix_open._no_gain)."""
+    from tvsd.analysis.matrix_open import heldout_gain_skipped
+
+    # A library call must not leave the doctor without its held-out simulation for later callers.
+    with heldout_gain_skipped() if not gain else contextlib.nullcontext():
+        _run(out, cases, variants, seconds, identify, cache)
+
+
+def _run(
+    out: Path,
+    cases: list[M.Case],
+    variants: tuple[str, ...],
+    seconds: float,
+    identify: dict[str, Any] | None,
+    cache: Path | None,
+) -> None:
     from tvsd.sim.record import record
 
-    if not gain:
-        from tvsd.analysis.matrix_open import _no_gain
-
-        _no_gain()
     done = {json.loads(line)["seed"] for line in out.read_text().splitlines()} if out.exists() else set()
     with tempfile.TemporaryDirectory() as tmp:
         folder = cache or Path(tmp)

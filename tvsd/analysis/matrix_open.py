@@ -23,6 +23,7 @@ every larger one (and the 90 % one likewise), with the rate over all cases from 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import glob
 import json
@@ -30,6 +31,7 @@ import math
 import tempfile
 import time
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -89,11 +91,29 @@ def _no_gain() -> None:
     verdict.heldout_speed = lambda *_a, **_k: (math.nan, math.nan, {}, {})
 
 
+@contextlib.contextmanager
+def heldout_gain_skipped() -> Iterator[None]:
+    """`_no_gain` for the duration of a block, then the held-out simulation back (a test or a
+    library call that skipped it left every later analysis in the process without it)."""
+    from tvsd.analysis import verdict
+
+    saved = verdict.heldout_speed
+    _no_gain()
+    try:
+        yield
+    finally:
+        verdict.heldout_speed = saved
+
+
 def run(out: Path, cases: list[M.Case], cache: Path | None = None, seconds: float = 30.0) -> None:
+    with heldout_gain_skipped():
+        _run(out, cases, cache, seconds)
+
+
+def _run(out: Path, cases: list[M.Case], cache: Path | None, seconds: float) -> None:
     from tvsd.analysis.matrix_closed import analyse, seen
     from tvsd.sim.record import record
 
-    _no_gain()
     done = (
         {json.loads(x)["seed"] for x in out.read_text().splitlines() if x.strip()} if out.exists() else set()
     )
