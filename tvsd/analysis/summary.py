@@ -107,6 +107,14 @@ def _sentence(dg: Diagnosis) -> str:
         values["delay_ms"] = 1e3 * float(dg.effect["delay_s"])
     if dg.cause == "colored_noise":
         values["tau_ms"] = 1e3 * float(dg.effect["tau_s"])
+    if dg.cause == "friction_asymmetry" and "offset_equivalent" in dg.effect:
+        # dataset.offset_term: the data cannot tell the split from a constant torque.
+        text = SENTENCES["friction_asymmetry"].format(**values)
+        return (
+            f"{text} A constant {'torque' if dg.data.units.axis == 'rotary' else 'force'} of "
+            f"{float(dg.effect['offset_equivalent']):.3g} {dg.data.units.effort} (a load, or the drive's "
+            "zero offset) would show the same: no recording can tell them apart."
+        )
     if dg.cause == "drift":
         values["relative_change_pct"] = 100 * float(dg.effect["relative_change"])
     if "order" in values:
@@ -121,7 +129,7 @@ KEEP = {
     "saturation": ("u_max",),
     "deadzone": ("u0", "u0_interval"),
     "delay": ("delay_s",),
-    "friction_asymmetry": ("ratio",),
+    "friction_asymmetry": ("ratio", "offset_equivalent"),
     "colored_noise": ("tau_s",),
     "drift": ("parameter", "relative_change"),
     "model_mismatch": ("reason",),

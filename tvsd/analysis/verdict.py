@@ -410,16 +410,17 @@ def _translate(
         fn = float(extra[1]) if len(extra) > 1 else 0.0
         kv_pos, kv_neg = -tc * J, -(tc + cn) * J
         tc_pos, tc_neg = -tf * J, -(tf + fn) * J
-        # Which levels carry the ratio: without back-EMF in the damping (a torque, current or
-        # force command) the viscous slopes are friction alone; a voltage drive's slope holds
-        # kM·kb/R of an unknown motor, so there the Coulomb levels speak.
-        if design.back_emf and len(extra) > 1 and tc_pos > 0:
+        # Which levels carry the ratio: the Coulomb ones where the split has them (a voltage
+        # drive's slope holds kM·kb/R of an unknown motor; outsider_bench's asymmetry scales the
+        # Coulomb levels only); with an offset in the baseline (a linear force axis, EMPS) the
+        # Coulomb split is the offset's, so the viscous slopes (friction alone there) speak.
+        if len(extra) > 1 and tc_pos > 0:
             ratio = tc_neg / tc_pos
         elif kv_pos > 0:
             ratio = kv_neg / kv_pos
         else:
             ratio = math.nan
-        return {
+        out = {
             "ratio": ratio,
             "at_speed": v,
             "kv_pos": kv_pos,
@@ -427,6 +428,11 @@ def _translate(
             "tau_c_pos": tc_pos,
             "tau_c_neg": tc_neg,
         }
+        if len(extra) > 1:
+            # A constant torque c is the same model (dataset.offset_term): the Coulomb split
+            # could equally be c = (τc₊ − τc₋)/2 in effort units, e.g. a drive's zero offset.
+            out["offset_equivalent"] = (tc_pos - tc_neg) / 2
+        return out
     if cause == "drift" and len(extra) >= 1:
         d = float(extra[0])
         p = effect.get("parameter")
