@@ -231,6 +231,13 @@ def _diagnose(
     peak = note is None and spectral_cause(noise, COLOUR_P) == "resonance"
     peak = peak and not on_declared_line(noise, data.excitation_hz)  # the excitation's own line
     peak_amp = abs(J) * math.sqrt(2.0) * noise.peak_rms
+    refuse = cause == "none" and peak and closed_ls
+    if refuse and not _peak_in_plant(prep, data, rotary, measured, out.keep, noise):
+        # Closed loop by least squares: a peak the instrumented fit does not leave is not the plant's.
+        loop = {"frequency_hz": noise.peak_hz, "amplitude": peak_amp, "q": noise.peak_q}
+        p_peak = float(chi2.sf(noise.peak_lr, 2))
+        ranked.append(Scored("resonance", loop, noise.peak_lr, p_peak, False, why_not=LOOP_PEAK))
+        peak = False
     if cause == "none" and peak:
         # Coloured, and the colour is a narrow peak: a structural mode, not a low-pass disturbance.
         cause, effect = "resonance", {"frequency_hz": noise.peak_hz, "amplitude": peak_amp, "q": noise.peak_q}
@@ -369,6 +376,39 @@ def _instrumented_check(
         return any(t.cause == cause and t.z > out.threshold for t in out.tested)
 
     return holds
+
+
+LOOP_PEAK = (
+    "loop_peak",
+    "closed loop: the residual's peak is not in the residual of the instrumented fit (the reference "
+    "as instrument), so it is the loop's answer to the noise that least squares on the measured "
+    "command leaves, not a mode of the plant",
+)
+
+
+def _peak_in_plant(
+    prep: Any, data: Dataset, rotary: bool, measured: D.Design, keep: np.ndarray, noise: NoiseReport
+) -> bool:
+    """Whether a residual peak of a closed-loop least-squares fit is the plant's: the law feeds
+    the measured noise back into the command, so least squares on that command is biased and its
+    residual keeps a share of the loop's answer to the noise — S = 1/(1 + PC) shaped, peaked at
+    the loop's own mode when it is underdamped (an outsider PI loop's 10.6 Hz on a null,
+    docs/measurements/loopmode.md). The instrumented fit's residual (y − X·θ_IV) is the
+    equation's own error: a mode of the plant is a torque in it and stays; the bias, and with it
+    the loop's peak, goes. The peak must be there too, within its half-power band."""
+    if not instrument.excited(data):
+        return False  # nothing to instrument with: a peak is not told from the loop's
+    iv, _ = instrument.instrumented(prep, data.offset_term, rotary)
+    resid = instrument.structural_residual(absorber.absorb(iv), measured)
+    if resid is None:
+        return False
+    rate = 1.0 / float(np.median(np.diff(prep.t_rows)))
+    again = analyse(np.where(keep, resid, 0.0), rate, 1.0, prep.band.cutoff_hz)
+    if spectral_cause(again, COLOUR_P) != "resonance":
+        return False
+    df = float(noise.freq[1] - noise.freq[0]) if len(noise.freq) > 1 else 0.0
+    half = max(noise.peak_hz / (2.0 * noise.peak_q), df) if noise.peak_q > 0 else df
+    return abs(again.peak_hz - noise.peak_hz) <= half
 
 
 def _closed_loop_note(data: Dataset) -> str | None:

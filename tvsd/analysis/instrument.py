@@ -249,6 +249,19 @@ def structural_left_side(iv: D.Design, measured: D.Design) -> np.ndarray:
     return iv.y - (measured.X - iv.X) @ (c / scale)
 
 
+def structural_residual(iv: D.Design, measured: D.Design) -> np.ndarray | None:
+    """y − X·θ_IV on the measured design's rows: θ_IV by the second stage (least squares on
+    the instrumented columns X̂, on the rows after the spin-up), the residual on the measured
+    columns — the equation's own error, in which a mode of the plant stays and the law's answer
+    to the noise, which least squares on the measured command leaves there (doctor.py's closed-
+    loop peak), does not. None when the two designs' columns differ."""
+    if measured.X.shape != iv.X.shape:
+        return None
+    m = iv.rows_mask
+    theta, *_ = np.linalg.lstsq(iv.X[m], iv.y[m], rcond=None)
+    return np.asarray(measured.y - measured.X @ theta)
+
+
 def residual(measured: D.Design, used: D.Design, verdict: Any) -> np.ndarray:
     """The equation error for the noise's colour. Open loop: the verdict's residual. IV: the
     coefficients on the measured regressors (the IV residual y − Xθ); the second stage's own
