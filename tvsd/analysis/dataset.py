@@ -108,6 +108,10 @@ def load(path: Path, cfg: Config) -> Dataset:
     # L/R lag; a current drive applies kM·i; a torque (force) command is the effort itself.
     if unit == "duty":
         u = u * float(rec.meta["u_scale"])
+    if rec.meta.get("u_sampling") == "hold" and len(u) > 1:
+        # Held from its sample on, u[k] acts over (t_k, t_k+1]: the interval that ends at t_k+1,
+        # which tvsd's convention (verdict._convention_unpinned) calls row k+1.
+        u = np.concatenate([u[:1], u[:-1]])
     if unit in ("V", "duty"):
         b_u, b_omega, lag = p.kM * p.ku / p.R, p.kM * p.kb / p.R, p.L / p.R
     elif unit == "A":

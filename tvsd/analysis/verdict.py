@@ -23,6 +23,7 @@ from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.prep import Band, prepare
+from tvsd.recording.csvfile import U_SAMPLING
 
 DRIFT_WINDOWS = 5
 # Why a candidate is not named: a code for programs, a sentence for people (candidates[i].why_not).
@@ -36,6 +37,13 @@ WHY: dict[str, tuple[str, str]] = {
     "refit_no_effect": (
         "refit_no_effect",
         "its structural refit (the drive fed the transformed command) lands on no effect",
+    ),
+    "sampling_convention": (
+        "sampling_convention",
+        "its delay {ms:.3g} ms is under two samples and the recording does not declare "
+        "'# u_sampling: mean|hold': a command held from its sample acts one sample later than one "
+        "averaged over the interval up to it (tvsd's), a pure delay of the same shape, so one "
+        "sample of it may be the bench's convention, not a cause",
     ),
     "refit_not_better": (
         "refit_not_better",
@@ -131,6 +139,22 @@ def _dissolved(cause: str, effect: dict[str, Any], u: np.ndarray, fs: float) -> 
     if cause == "saturation" and "u_max" in effect:
         return float(np.mean(np.abs(u) > float(effect["u_max"]))) < D.SUPPORT
     return False
+
+
+def _convention_unpinned(data: Dataset, effect: dict[str, Any]) -> bool:
+    """A delay under two samples on a recording that does not say how its command was sampled.
+
+    The delay is measured against tvsd's convention (u and ω both the means over the interval
+    up to the sample). A bench that holds each command from its sample on (the outsider
+    generator, most drives) applies it one full sample later: on the outsider's nulls that
+    alone put the delay at 1.0 sample, and the drive's own sub-sample lags (a larger L/R, an
+    inner current loop) took it to 1.09-1.59 samples, past the one-sample edge, named `delay`.
+    A hold is a pure delay, the same phase −ωτ as a cause, so no test on the recording can
+    separate it: declared (`# u_sampling: hold` shifts u by a sample on load, dataset.py) it is
+    removed; undeclared, one sample more is needed before a delay is a cause."""
+    if data.meta.get("u_sampling") in U_SAMPLING:
+        return False
+    return float(effect["delay_s"]) < 2.0 / data.sample_rate_hz
 
 
 def _structural_lr(design: D.Design, out: C.Outcome, u: np.ndarray, u_app: np.ndarray) -> float:
@@ -326,6 +350,9 @@ def name_cause(
             X_ext = D.with_input(design, u_app)
             if _dissolved(t.cause, effect, u, design.prep.data.sample_rate_hz):
                 why = WHY["refit_no_effect"]
+            elif t.cause == "delay" and _convention_unpinned(design.prep.data, effect):
+                code, text = WHY["sampling_convention"]
+                why = (code, text.format(ms=1e3 * float(effect["delay_s"])))
             elif (lr := _structural_lr(design, out, u, u_app)) <= STRUCTURAL_CHI2:
                 why = (WHY["refit_not_better"][0], WHY["refit_not_better"][1].format(lr=lr))
             elif instrumented is not None and not instrumented(t.cause):

@@ -29,6 +29,9 @@ FORMAT_VERSION = "1"
 # What u is (DESIGN.md): a voltage drive (default), a current drive, a torque/force command, or a
 # PWM duty −1…1 with `u_scale` volts at full duty.
 U_UNITS = ("V", "A", "N*m", "N", "duty")
+# How u was sampled (`# u_sampling:`): "mean" over the interval up to the sample, like ω (tvsd's
+# recordings), or "hold" from the sample on (it acts one sample later). Absent: not known.
+U_SAMPLING = ("mean", "hold")
 REFERENCE_COLUMNS = ("omega_ref", "phi_ref")
 HUGE = 1e15  # no time, command, speed or angle of a drive comes near this
 REQUIRED = ("t", "u", "omega")
@@ -190,6 +193,13 @@ def _check_unit(meta: Mapping[str, str], fail: Failer) -> None:
     unit = meta.get("u_unit", "V")
     if unit not in U_UNITS:
         raise fail(2, f"u_unit {unit!r} is not one of {', '.join(U_UNITS)} (what the command u is)")
+    sampling = meta.get("u_sampling")
+    if sampling is not None and sampling not in U_SAMPLING:
+        raise fail(
+            2,
+            f"u_sampling {sampling!r} is not one of {', '.join(U_SAMPLING)} (u averaged over the "
+            "interval up to its sample, or held from it on): fix it or delete the line",
+        )
     if unit == "duty":
         try:
             scale = float(meta.get("u_scale", "nan"))

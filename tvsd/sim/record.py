@@ -196,6 +196,7 @@ def record(
         extra["u_exc"] = exc[: n_rec * decim, 1].reshape(n_rec, decim).mean(axis=1)
     cols = measure(trace, m, rng)
     meta["u_unit"] = u_unit
+    meta["u_sampling"] = "mean"  # u and ω are both means over the row's interval (measure())
     if u_unit == "A":
         cols["u"] = trace.current
     elif u_unit == "N*m":
