@@ -131,6 +131,7 @@ def read(path: Path) -> Recording:
         raise fail(2, f"sample_rate_hz must be a positive number, got {meta['sample_rate_hz']!r}")
     _check_unit(meta, fail)
     lines_hz = excitation_lines(meta.get("excitation_hz"), rate, meta_row.get("excitation_hz", 2), fail)
+    _check_counts(meta.get("encoder_counts_per_rev"), meta_row.get("encoder_counts_per_rev", 2), fail)
     if row >= len(lines):
         raise fail(row + 1, "missing the column header line (t,u,omega[,phi,...])")
     header = [h.strip() for h in lines[row].split(",")]
@@ -158,6 +159,22 @@ def read(path: Path) -> Recording:
     return Recording(
         cols["t"], cols["u"], cols["omega"], phi, rate, meta, extra, path, phi_measured, lines_hz
     )
+
+
+def _check_counts(value: str | None, row: int, fail: Failer) -> None:
+    """`# encoder_counts_per_rev: N`: a whole number ≥ 4 (the model doctor reads the count's step)."""
+    if value is None:
+        return
+    try:
+        n = float(value)
+    except ValueError:
+        n = math.nan
+    if not (math.isfinite(n) and n == int(n) and 4 <= n <= 1 << 30):
+        raise fail(
+            row,
+            f"encoder_counts_per_rev must be a whole number of counts per revolution (≥ 4), got "
+            f"{value!r}: fix it or delete the line",
+        )
 
 
 def format_lines(lines_hz: Iterable[float]) -> str:
