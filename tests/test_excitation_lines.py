@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
+from csv_helpers import square_wave_csv
 
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import matrix as M
@@ -24,24 +24,13 @@ from tvsd.recording.csvfile import read
 from tvsd.sim.record import record
 
 
-def _csv(path: Path, meta: str) -> None:
-    t = np.arange(3000) / 1000
-    u = np.where((t % 1) < 0.5, 5.0, -5.0)
-    lines = ["# tvs-recording: 1", "# sample_rate_hz: 1000", meta, "t,u,omega"]
-    lines += [
-        f"{a:.4f},{b!r},{c!r}"
-        for a, b, c in zip(map(float, t), map(float, u), map(float, np.cumsum(u) / 1000), strict=True)
-    ]
-    path.write_text("\n".join(lines) + "\n")
-
-
 @pytest.mark.parametrize(
     "value,needle",
     [("8Hz 4", "'8Hz'"), ("0 4", "'0'"), ("4 600", "'600'"), ("nan", "'nan'"), ("", "is empty")],
 )
 def test_a_malformed_excitation_line_is_one_line_exit_2(tmp_path, capsys, value, needle) -> None:
     path = tmp_path / "bad.csv"
-    _csv(path, f"# excitation_hz: {value}")
+    square_wave_csv(path, f"# excitation_hz: {value}")
     assert main(["analyze", str(path), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert needle in err and "row 3" in err and err.count("\n") == 1, err
@@ -49,7 +38,7 @@ def test_a_malformed_excitation_line_is_one_line_exit_2(tmp_path, capsys, value,
 
 def test_the_line_is_read_and_carried(tmp_path) -> None:
     path = tmp_path / "ok.csv"
-    _csv(path, "# excitation_hz: 0.2, 0.4 8")
+    square_wave_csv(path, "# excitation_hz: 0.2, 0.4 8")
     assert read(path).excitation_hz == (0.2, 0.4, 8.0)
     data = load(path, load_config())
     assert data.excitation_hz == (0.2, 0.4, 8.0) and data.slice(0, 10, "x").excitation_hz == (0.2, 0.4, 8.0)

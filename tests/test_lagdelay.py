@@ -10,10 +10,9 @@ a hold is undone on load; undeclared, a delay must exceed two samples to be a ca
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from csv_helpers import square_wave_csv
 
 from tvsd.analysis.dataset import load
 from tvsd.cli.main import main
@@ -21,21 +20,10 @@ from tvsd.config import load_config
 from tvsd.recording.csvfile import read
 
 
-def _csv(path: Path, meta: str) -> None:
-    t = np.arange(3000) / 1000
-    u = np.where((t % 1) < 0.5, 5.0, -5.0)
-    lines = ["# tvs-recording: 1", "# sample_rate_hz: 1000", meta, "t,u,omega"]
-    lines += [
-        f"{a:.4f},{b!r},{c!r}"
-        for a, b, c in zip(map(float, t), map(float, u), map(float, np.cumsum(u) / 1000), strict=True)
-    ]
-    path.write_text("\n".join(lines) + "\n")
-
-
 @pytest.mark.parametrize("value", ["sideways", "", "Hold"])
 def test_an_unknown_sampling_is_one_line_exit_2(tmp_path, capsys, value) -> None:
     path = tmp_path / "bad.csv"
-    _csv(path, f"# u_sampling: {value}")
+    square_wave_csv(path, f"# u_sampling: {value}")
     assert main(["analyze", str(path), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "u_sampling" in err and "mean, hold" in err and err.count("\n") == 1, err
@@ -45,9 +33,9 @@ def test_a_held_command_is_moved_one_sample_later_on_load(tmp_path) -> None:
     """Held from sample k on, u[k] acts over the interval that ends at sample k+1: row k+1 in
     tvsd's convention. A mean (or no line) leaves u as recorded."""
     held, mean, bare = tmp_path / "held.csv", tmp_path / "mean.csv", tmp_path / "bare.csv"
-    _csv(held, "# u_sampling: hold")
-    _csv(mean, "# u_sampling: mean")
-    _csv(bare, "# source: a bench")
+    square_wave_csv(held, "# u_sampling: hold")
+    square_wave_csv(mean, "# u_sampling: mean")
+    square_wave_csv(bare, "# source: a bench")
     cfg = load_config()
     u = read(bare).u
     assert np.array_equal(load(bare, cfg).u, u) and np.array_equal(load(mean, cfg).u, u)
