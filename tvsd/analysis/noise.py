@@ -5,12 +5,13 @@ speed-measurement noise. The paper's Δv (eq. 12) is white: a flat spectrum in t
 low-pass correlated Δv (Ornstein–Uhlenbeck, correlation time τ) is flat only below 1/(2πτ).
 The test fits both spectral shapes to the residual's Welch spectrum by Whittle's likelihood and
 compares them with a likelihood ratio (χ² with one degree of freedom: the extra τ):
-    white:    S(f) = a + b·f² + c·f⁴
-    coloured: S(f) = a / (1 + (2πfτ)²) + b·f² + c·f⁴
-b·f² is a white speed-measurement noise, differentiated; c·f⁴ is an encoder's quantisation noise
-once the speed is the position's difference (white in φ, f² in ω, f⁴ in ω̇). Without the f⁴ term
-the low-pass shape fitted an encoder bench's quantisation better than the flat one did: 4 of 4
-encoder-difference nulls of tests/outsider_bench.py were `colored_noise` (docs/measurements/outsider.md).
+    white:    S(f) = a + b·f²
+    coloured: S(f) = a / (1 + (2πfτ)²) + b·f²
+An encoder's quantisation (white in φ: f⁴ in the residual once the speed is the position's
+difference) is not in either shape: an f⁴ term made 4 of 4 encoder-difference nulls of
+tests/outsider_bench.py flat, but also bent the flat shape to a 20 ms OU colour's roll-off
+(tvsd's own hidden-colour case: likelihood ratio 18.7 → 4.6, missed); `tvsctl sim record`'s files
+declare an 8192-count encoder too, so the header cannot switch it (docs/measurements/outsider.md).
 The Whittle sum treats every bin of every segment as independent; with a Hann window and 50 %
 overlap they are not (neighbouring bins and overlapping segments share data), so the ratio is
 scaled by the effective number of segments (`effective_segments`), not the count.
@@ -105,36 +106,33 @@ def ljung_box(x: np.ndarray, lags: int = 20) -> float:
 def _whittle(params: np.ndarray, f: np.ndarray, p: np.ndarray, coloured: bool) -> float:
     if np.any(np.abs(params) > 300):  # exp would overflow: outside any physical spectrum
         return math.inf
-    a, b, c = math.exp(params[0]), math.exp(params[1]), math.exp(params[2])
-    rise = b * f**2 + c * f**4
-    s = a + rise
+    a, b = math.exp(params[0]), math.exp(params[1])
+    s = a + b * f**2
     if coloured:
-        tau = math.exp(params[3])
-        s = a / (1 + (2 * math.pi * f * tau) ** 2) + rise
+        tau = math.exp(params[2])
+        s = a / (1 + (2 * math.pi * f * tau) ** 2) + b * f**2
     return float(np.sum(np.log(s) + p / s))
 
 
 def _whittle_peak(params: np.ndarray, f: np.ndarray, p: np.ndarray) -> float:
     if np.any(np.abs(params) > 300):  # exp would overflow: outside any physical spectrum
         return math.inf
-    a, b, c, A, f0, q = (math.exp(x) for x in params)
+    a, b, A, f0, q = (math.exp(x) for x in params)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        s = a + b * f**2 + c * f**4 + A / (1 + q**2 * (f / f0 - f0 / f) ** 2)
+        s = a + b * f**2 + A / (1 + q**2 * (f / f0 - f0 / f) ** 2)
         value = float(np.sum(np.log(s) + p / s))
     return value if math.isfinite(value) else math.inf
 
 
 def _peak(fm: np.ndarray, pm: np.ndarray, a0: float, b0: float) -> tuple[float, float, float, float]:
-    """Whittle fit of a flat + f² + f⁴ floor with one resonant (Lorentzian) peak: (fun, f0, Q, power)."""
+    """Whittle fit of a flat + f² floor with one resonant (Lorentzian) peak: (fun, f0, Q, power)."""
     floor = a0 + b0 * fm**2
-    c0 = _c0(fm, b0)
     k = int(np.argmax(pm / floor))
     best = None
     for q0 in (3.0, 10.0, 30.0):
         start = [
             math.log(a0),
             math.log(b0),
-            math.log(c0),
             math.log(max(pm[k] - floor[k], 1e-3 * floor[k])),
             math.log(fm[k]),
             math.log(q0),
@@ -143,7 +141,7 @@ def _peak(fm: np.ndarray, pm: np.ndarray, a0: float, b0: float) -> tuple[float, 
         if best is None or r.fun < best.fun:
             best = r
     assert best is not None
-    _, _, _, A, f0, q = (math.exp(x) for x in best.x)
+    _, _, A, f0, q = (math.exp(x) for x in best.x)
     power = A * math.pi * f0 / (2 * q)  # ∫ of the Lorentzian over f (narrow-peak limit)
     return float(best.fun), f0, q, power
 
@@ -195,20 +193,14 @@ def _in_band(f: np.ndarray, p: np.ndarray, band_hz: float) -> tuple[np.ndarray, 
     return fm, pm, a0, b0
 
 
-def _c0(fm: np.ndarray, b0: float) -> float:
-    """The f⁴ term's start: a tenth of the f² term's level at the band's top."""
-    return max(0.1 * b0 / float(fm[-1]) ** 2, 1e-300)
-
-
 def _colour_fits(fm: np.ndarray, pm: np.ndarray, a0: float, b0: float) -> tuple[Any, Any]:
     """Whittle fits of the white and the coloured shape (scipy OptimizeResults)."""
-    start = [math.log(a0), math.log(b0), math.log(_c0(fm, b0))]
-    white = minimize(_whittle, start, args=(fm, pm, False), method="Nelder-Mead", options={"maxiter": 2000})
+    white = minimize(_whittle, [math.log(a0), math.log(b0)], args=(fm, pm, False), method="Nelder-Mead")
     best = None
     for tau0 in (0.003, 0.01, 0.03, 0.1, 0.3):
         r = minimize(
             _whittle,
-            [*white.x, math.log(tau0)],
+            [math.log(a0), math.log(b0), math.log(tau0)],
             args=(fm, pm, True),
             method="Nelder-Mead",
             options={"maxiter": 2000},
@@ -230,7 +222,7 @@ def spectrum_report(
     # open-loop nulls were false alarms, 6 of them colour, README); the peak's statistics keep
     # the count: PEAK_WHITE_LR was calibrated on them.
     lr = max(0.0, 2 * effective_segments(segments, 2 * (len(f) - 1)) * (white.fun - best.fun))
-    tau = math.exp(best.x[3])
+    tau = math.exp(best.x[2])
     # White Δv of intensity σv (eq. 12): one-sided PSD of J·Δv is 2·J²·σv².
     sigma_v = math.sqrt(math.exp(white.x[0]) / 2) / J if J > 0 else math.nan
     fun_peak, f0, q, power = _peak(fm, pm, a0, b0)
