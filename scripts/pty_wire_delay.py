@@ -12,7 +12,8 @@ reading it (the WireStats histogram). One JSON line per hog count. Refused FIFO:
 as it is (the figures then include this process's own starvation).
 
 Under the soak's 50 RPC clients: `TVSD_SIL_WIRE_STATS=/tmp/wire.json tvsctl bench --only soak`
-(the SIL process writes the same histogram there; README, the pty's kernel worker).
+(the SIL process writes the same histogram there; docs/measurements/soak-and-load.md, the pty's kernel
+worker).
 """
 
 from __future__ import annotations

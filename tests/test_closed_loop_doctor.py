@@ -97,7 +97,8 @@ def test_the_identify_profile_records_its_prbs_and_it_instruments_the_command(tm
 
 # Closed-loop subset (seed 0 of the matrix's closed-loop family, 30 s each, ≈ 5 s per case at load
 # 2, ≈ 70 s at load 30): two nulls and one case per cause at 30× its base. The seeds are fixed, so
-# the outcome is deterministic; what it stands for, measured on the matrix (README, "Closed loop:
+# the outcome is deterministic; what it stands for, measured on the matrix
+# (docs/measurements/doctor-closed.md, "Closed loop:
 # what is named instead"): imbalance, cogging and delay were named in 6 of 6 cases each at 3× and
 # 10× (95 % lower bound 54 %), and 1 of 38 closed-loop nulls was a false alarm (2.6 %, 95 % CI
 # 0.07–13.8 %), so a fresh pair of null seeds passes with probability ≈ 0.95 (≥ 0.74 at the CI's

@@ -5,7 +5,8 @@ command back as PWM, the SA IMU twin behind the smbus2 calls, the compensated st
 recorded pulses, re-run through an uncompensated PointStream, give the scatter without the IMU
 and the drive model; the scene's β is one constant, so a robust spread of β is its error.
 
-Measured (25 rev/s, 8 s, README "Point stream"): uncompensated 6.5e-4 rad, compensated 5.7–7.8e-5
+Measured (25 rev/s, 8 s, docs/measurements/daemon.md, "Point stream"): uncompensated 6.5e-4 rad, compensated
+5.7–7.8e-5
 rad: a gain of 8–11. Before the sampling-instant fix, the PWM actually sent, the SIL encoder ramp
 and the twin's DLPF delay it was 0.9–1.2. The bound, 3, sits far below the measured gain and
 far above no gain: the MAD of ~150 points is good to ~10 %, SIL timing varies run to run.

@@ -1,4 +1,4 @@
-"""What the per-cause naming figures rest on (README, "Per-cause detection limits"): the matrix's
+"""What the per-cause naming figures rest on (README, "What it cannot name"): the matrix's
 open-loop effect sizes put the effect in the data, thresholds need commands strictly on both
 sides, and the residual spectrum's peak is told from a low-pass colour before the colour test."""
 

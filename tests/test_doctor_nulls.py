@@ -15,7 +15,8 @@ excitation; seed 2, nulls 9–15). At a 2 % rate seven nulls give 2 or more alar
 scan against a flat spectrum, over the command's own lines; the noise colour tested in closed
 loop) gave 4 of these seven: `resonance` at 7.99 Hz (the identify multisine's top line) twice
 and at 79.6 Hz, `colored_noise` once. These seeds were among those the rule was diagnosed on
-(README, "False alarms"): a regression test, not the figure. With the null drawn from the
+(docs/measurements/doctor-false-alarms.md, "False alarms"): a regression test, not the figure. With the null
+drawn from the
 residual's own spectrum and the threshold the empirical 99 % point of 2000 draws (calibrate.py)
 the seventeen give 0 alarms (the largest standardised statistic 2.0 open, 6.3 closed: a delay
 the refit dissolves); the tolerances stay those of the 2 % target.

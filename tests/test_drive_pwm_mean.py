@@ -4,7 +4,8 @@ The law ticks at 10 kHz, the frames go at the exchange rate (2 kHz with the ATme
 ticks; the SIL pty hands the states over each millisecond, so there one frame per 10 ticks). A frame
 holding only the last tick's command aliases the command's tick-to-tick swing into
 the voltage the drive applies, which the recording's u (the 1 ms mean of the ticks) does not show:
-on the SIL daemon's identify runs the two differed by 2.1 V rms below 20 Hz (README, model doctor
+on the SIL daemon's identify runs the two differed by 2.1 V rms below 20 Hz
+(docs/measurements/doctor-method.md, model doctor
 step 8). These tests drive `DriveLink._send_pwm` with a runner whose last ticks alternate, and a
 link that keeps the duty it is given (the wire itself is tested in test_mcu_link.py).
 """

@@ -3,7 +3,8 @@ doctor must name it from the daemon's own recording, through the command line as
 
 The hidden effect is an imbalance of 2e-4 N·m at 25 rev/s (the SIL profile's `effects:`, which the
 daemon's recording does not carry): ≈ 6× the matrix's base size for the config's plant (0.5·J),
-where the closed-loop matrix names imbalance in every case from 3× (README, "Closed loop"); offline
+where the closed-loop matrix names imbalance in every case from 3× (docs/measurements/doctor-closed.md,
+"Closed loop"); offline
 the same excitation named it on 2 of 2 seeds, with `none` on the two null runs. The export's u is
 the PWM frames the daemon sent (held, 1 ms means): the law's own mean, written as u before, led
 the applied voltage by a scattered 2-19 ms and the doctor named a delay, a clip, a resonance or
@@ -12,9 +13,9 @@ sampling instants (channel `states`, tvsd/cli/export_states.py): the control thr
 measurement, 3 ms late and standing still where frames arrived in a burst, made a `cogging` of
 orders 13-20 (3 of 18 earlier exports, re-analysed) and most of a 3.5-3.8 ms `delay`. With it,
 12 of 12 runs passed at load 8-14: imbalance 1.96-2.25e-4 (± 1.1-1.2e-5), cogging z <= 1.6, a
-delay of 1.2 and 1.6 ms twice (the SIL chain's own, below); both null runs `none` (README, model
-doctor step 8). The doctor names every cause the data support (tvsd.analysis.selection), and the
-imbalance must be among them.
+delay of 1.2 and 1.6 ms twice (the SIL chain's own, below); both null runs `none`
+(docs/measurements/doctor-method.md, model doctor step 8). The doctor names every cause the data
+support (tvsd.analysis.selection), and the imbalance must be among them.
 The daemon runs with the fail-safe times widened (conftest.RELAXED_FAILSAFE), as every SIL daemon
 test does, the MCU handshake and identify's speed check widened too, and --realtime: this test is about the
 doctor's answer on a clean recording, not the fail-safe's timing (test_identify_daemon.py and
@@ -39,7 +40,8 @@ from tvsd.recording.csvfile import read
 HIDDEN = "imbalance:amplitude=2e-4,phase=0.5"
 RPS = 25.0
 ROOT = Path(__file__).resolve().parents[1]
-MAX_GAPS = 50  # filled 1 ms stretches: the README's run 0; --realtime runs at load 20: 9-22
+MAX_GAPS = 50  # filled 1 ms stretches: docs/measurements/identify.md's run 0; --realtime runs at
+# load 20: 9-22
 # rms of ω − ω_ref over the export: 0.039-0.042 rev/s on three clean runs at load 15; one run
 # whose gaps stayed under MAX_GAPS lost the reference (rms 0.54, p99 2.5 rev/s: the speed spread
 # of the identify excitation doubled) and its imbalance statistic was 1.0 (z, own null; 12-29 on
@@ -116,7 +118,7 @@ def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_p
     # H-bridge) is the SIL loop's own and may show as a `delay` (1.0-1.5 ms from a frame's
     # sending to the SIL plant, applied in its next 1 ms chunk; named 1.2 and 1.6 ms on 2 of 12
     # runs with omega from the frames, z -0.6-3.1 on the others).
-    # No clip: the export's u shows every clip the drive makes (README, model doctor step 8).
+    # No clip: the export's u shows every clip the drive makes (docs/measurements/doctor-method.md, step 8).
     assert not set(named) & {"cogging", "resonance", "friction_asymmetry", "drift"}, shown
     if "delay" in named:
         assert 1e-3 < named["delay"]["effect"]["delay_s"] < 20e-3, shown

@@ -27,9 +27,9 @@ def test_a_short_soak_under_cpu_hogs_has_no_fault_and_no_watchdog_expiry() -> No
     machine. Why 20 s is enough: the issue measured 135 watchdog cuts in 20 s of 50 polling
     clients (3 without them), and main before the link thread gave dozens in this test's 20 s
     (39 watchdog expiries, 75 faults): a daemon that passes has removed a rate of ~2 per second,
-    not a rare event. What it took at the end (README, Soak): the host holds on late but complete
-    state frames instead of latching (tvsd.control.hold), and the SIL's simulated firmware waits
-    at its watchdog's edge, at most G = 500 ms, for a heartbeat the pty's kernel worker hands
+    not a rare event. What it took at the end (docs/measurements/soak-and-load.md, Soak): the host holds on
+    late but complete state frames instead of latching (tvsd.control.hold), and the SIL's simulated
+    firmware waits at its watchdog's edge, at most G = 500 ms, for a heartbeat the pty's kernel worker hands
     over late (tvsd.sim.mcu_wire) — both the pty's, not the daemon's: the host's own heartbeats
     stay ≤ ~15 ms apart. Passed 5 of 5 runs at merge (2 of them beside one more busy loop).
     The timing figures (missed ticks, p99 against the floor) are printed, not asserted: a test
@@ -63,8 +63,8 @@ def test_a_short_soak_under_cpu_hogs_alone_keeps_the_mcu_link() -> None:
 
     The MCU faults it caught in CI (`mcu_stale` with the host on time) were the SIL's pty: its
     reads and polls wait for the kernel's tty flip-buffer worker, which the hogs delay, and the
-    virtual MCU's frames went out only after such a read (README, Soak: "the pty's kernel
-    worker"; tvsd.sim.virtual_mcu.VirtualMcu.write_out and
+    virtual MCU's frames went out only after such a read (docs/measurements/soak-and-load.md, Soak: "the pty's
+    kernel worker"; tvsd.sim.virtual_mcu.VirtualMcu.write_out and
     tvsd.sim.mcu_wire.WireModel.sent_times). The same worker delays
     a real UART's input, so the host now holds PWM 0 through late but complete frames and
     latches only on a gap in the MCU's own sequence (tvsd.control.hold, "Late input is held").

@@ -1,4 +1,4 @@
-"""Install from a wheel (README "Installing on the scanner"): build the wheel from this checkout,
+"""Install from a wheel (README "On the scanner"): build the wheel from this checkout,
 install it into a fresh venv outside the checkout, and run `tvsctl mcu identify --sil` and
 `tvsd --sil` from there, with the config in an /etc/tvsd-like directory.
 

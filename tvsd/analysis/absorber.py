@@ -6,7 +6,8 @@ another bench's bearings. What the three terms miss is left in the residual as a
 and its projection on a cause's columns — a dead zone's near-zero commands, the direction split
 of friction asymmetry (on a record whose speeds are not symmetric an odd misfit is not
 orthogonal to the even columns), sin φ on a slow multisine — was named as that cause with the
-out-of-sample check confirming it (it is systematic; README, "False alarms").
+out-of-sample check confirming it (it is systematic; docs/measurements/doctor-false-alarms.md, "False
+alarms").
 
 So the null model carries a few more odd basis functions of ω: sgn ω·e^{−|ω|/(c·ω_top)} for
 c in SCALES (Stribeck-like decays from the stuck threshold to a third of the top speed).

@@ -22,15 +22,16 @@
    level is α, set, not tuned. (A Gumbel law fitted to 400 maxima by moments put the threshold
    0.1 low: 1.2 % for a nominal 1 %, measured on 8000 draws.) The bootstrap conditions on the
    regressors, as least squares does; what it does not cover is a baseline that is wrong in a
-   way no cause describes (misfit; README, "False alarms") — and in closed loop the command
-   answers the noise, so the command-side blocks are not independent of it.
+   way no cause describes (misfit; docs/measurements/doctor-false-alarms.md, "False alarms") — and in closed
+   loop the command answers the noise, so the command-side blocks are not independent of it.
 4. Out-of-sample confirmation (heldout_gain, applied by tvsd.analysis.verdict to the winner):
    fitted on four of five contiguous folds, the extension must predict the fifth better than the
    baseline — misfit of one stretch of the record, or a scan's luck, does not carry over. A fold
    the other four do not pin down (its prediction's own estimation error at least the record's
    whole evidence for the extension) is left out: there the extrapolation decides, not the cause.
    (A wild block bootstrap of the residual rows was tried as the null: it calibrated the resonance
-   scan better but named friction asymmetry on a default-plant multisine null; README.)
+   scan better but named friction asymmetry on a default-plant multisine null;
+   docs/measurements/doctor-false-alarms.md.)
 """
 
 from __future__ import annotations

@@ -173,7 +173,8 @@ def _diagnose(
     prep = prepare(data, band)
     design = absorber.absorb(D.build(prep, data.offset_term, rotary))
     measured = design
-    if iv and instrument.excited(data):  # closed loop, excited: 2SLS (opt-in, README)
+    if iv and instrument.excited(data):  # closed loop, excited: 2SLS (opt-in,
+        # docs/measurements/doctor-closed.md)
         instrumented, _ = instrument.instrumented(prep, data.offset_term, rotary, measured=measured)
         design = absorber.absorb(instrumented)
     design.back_emf = data.b_omega > 0 or data.u_unit == "V"

@@ -8,8 +8,8 @@ the effect: the pilot), state the size in units the test can see:
 
 - saturation: the share of samples whose |u| exceeds u_max, and the rms excess in noise units;
 - dead zone: the share of moving samples where the command is inside the zone, or pushes
-  against the motion (there a dead zone and Coulomb friction differ: README, dead-zone width);
-  its width in noise units (`units`, u0·b_u) and the part of its torque a Coulomb level cannot
+  against the motion (there a dead zone and Coulomb friction differ: docs/measurements/cldz.md, "Why, per
+  cause"); its width in noise units (`units`, u0·b_u) and the part of its torque a Coulomb level cannot
   take (`exposed_units`: the rms of b_u·(clip(u, ±u0) − its mean per direction of motion) over
   the moving samples) — what the data can show: 0 where the command never enters the zone
   and never pushes against the motion, however wide the zone;

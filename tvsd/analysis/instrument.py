@@ -26,13 +26,15 @@ the first stage predicts from it too, and the second stage's left side is cleane
 
 Status: two uses. As a confirmation, by default: in closed loop by least squares a command-side
 cause (dead zone, clip, delay, drift, friction asymmetry) must also pass the gate on the
-instrumented design (tvsd.analysis.doctor._instrumented_check; README, "Closed-loop false alarms").
+instrumented design (tvsd.analysis.doctor._instrumented_check; docs/measurements/doctor-false-alarms.md,
+"Closed-loop false alarms").
 As the whole analysis, opt-in (`diagnose(..., iv=True)`; `python -m tvsd.analysis.matrix_closed
 --variants ls,iv`), not the default, because it did not measure better. On 104 cases of the
 closed-loop family (docs/measurements/closed-loop-ls-iv.w*.jsonl, the same files through both): 3
 false alarms in 10 nulls for both, 52 of 94 effect cases named against least squares' 49 — better on
 delay and dead zone at 3×, no better elsewhere, and ≈ 30 % slower. With the reversal segment it did
-worse than least squares (6 of 12 nulls alarmed; README, "Closed loop"). The PRBS lifts the first
+worse than least squares (6 of 12 nulls alarmed; docs/measurements/doctor-closed.md, "Closed loop"). The PRBS
+lifts the first
 stage's share of the command's band-limited variance (0.87 → 0.96 on a 30 s case); what is left —
 the law's answer to the noise — is low-pass and, through the scanned nonlinear blocks of û, still
 fits. A file without a moving reference or a u_exc column instruments nothing: then the command-side

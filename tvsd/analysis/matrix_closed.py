@@ -183,7 +183,8 @@ def sized(case: M.Case, cfg: Config, tmp: Path, seconds: float, keep: bool = Fal
 
 
 # Opt-in (`--exposed-deadzone`, not measured yet): a closed-loop dead zone sized by what the pilot
-# recording exposes, not by u_max (README: 0.4 % of u_max per 1× gave 0–80 exposed noise units).
+# recording exposes, not by u_max (docs/measurements/cldz.md: 0.4 % of u_max per 1× gave 0–80 exposed noise
+# units).
 EXPOSED_DEADZONE = False
 
 

@@ -219,8 +219,8 @@ def spectrum_report(
     fm, pm, a0, b0 = _in_band(f, p, band_hz)
     white, best = _colour_fits(fm, pm, a0, b0)
     # The colour's ratio on the effective segments (inflated ≈ 2.1× on the count: 11 of 300
-    # open-loop nulls were false alarms, 6 of them colour, README); the peak's statistics keep
-    # the count: PEAK_WHITE_LR was calibrated on them.
+    # open-loop nulls were false alarms, 6 of them colour, docs/measurements/doctor-false-alarms.md); the
+    # peak's statistics keep the count: PEAK_WHITE_LR was calibrated on them.
     lr = max(0.0, 2 * effective_segments(segments, 2 * (len(f) - 1)) * (white.fun - best.fun))
     tau = math.exp(best.x[2])
     # White Δv of intensity σv (eq. 12): one-sided PSD of J·Δv is 2·J²·σv².

@@ -1,4 +1,4 @@
-"""`tvsctl bench`: the benchmark suite (figures for README's Performance section)."""
+"""`tvsctl bench`: the benchmark suite (figures for README's Benchmarks section)."""
 
 from __future__ import annotations
 

@@ -248,7 +248,8 @@ def sent_column(rows: np.ndarray, t_first: float, table: Table, law: np.ndarray)
 
     Why not the law's 1 ms mean: the drive applies the frames, sent once per batch of states
     (2 kHz on the ATmega, each millisecond through the SIL's pty, irregularly when the daemon's
-    I/O thread runs late), not the 10 kHz ticks the bins average (README, model doctor step 8)."""
+    I/O thread runs late), not the 10 kHz ticks the bins average (docs/measurements/doctor-method.md,
+    step 8)."""
     period = 1.0 / table.rate_hz
     edges = t_first - period + np.arange(len(table.t) + 1) * period
     order = np.argsort(rows["t"], kind="stable")

@@ -6,7 +6,8 @@ speed over its last 2 ms of frames, held from the frame's *arrival* until the ne
 hold: 3 ms on the SIL daemon) and, where the frames reach the host late in a burst (the link's
 I/O thread late, a pty's batch), it stands still and then jumps: a step in phi at an instant that
 has nothing to do with the shaft, broadband, in the model doctor's band, which a `cogging` of a
-high order (13-20 on four SIL identify exports) or a longer `delay` fitted (README, model doctor
+high order (13-20 on four SIL identify exports) or a longer `delay` fitted
+(docs/measurements/doctor-method.md, model doctor
 step 8). The frames carry the MCU's own tick stamp of the instant it read the encoder, so the
 export places each count there (the link's clock sync maps ticks to the host's clock) and writes,
 per loop sample, the angle at the sample's end and the mean speed over the sample (the angle's

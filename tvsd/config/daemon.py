@@ -91,7 +91,8 @@ SOCKET_PATH_MAX = 107  # sun_path is 108 bytes on Linux, NUL included
 @dataclass(frozen=True, kw_only=True)
 class WebSettings:
     """The `web:` section: the daemon's live, read-only web page (tvsd/daemon/web). Off unless
-    enabled; on loopback by default, or on a Unix socket for a reverse proxy (README "Live view")."""
+    enabled; on loopback by default, or on a Unix socket for a reverse proxy (docs/measurements/web-view.md,
+    "Live view")."""
 
     enabled: bool = option(False, doc="serve the live view")
     host: str = option("127.0.0.1", doc="address to bind (loopback: this machine only)")

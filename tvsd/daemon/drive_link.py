@@ -254,7 +254,8 @@ class DriveLink:
         the applied voltage, which the recording's u (the 1 ms mean of the ticks) does not show.
         On the SIL daemon's identify runs the two differed by 2.1 V rms below 20 Hz (the mean of
         the last 5 ticks only: 0.5 V), and the doctor named a clip, a resonance, coloured noise or
-        negative damping for it; with this mean 0.10 V at a steady 2 ms lag (README, model doctor
+        negative damping for it; with this mean 0.10 V at a steady 2 ms lag
+        (docs/measurements/doctor-method.md, model doctor
         step 8). A command of exactly 0 is the loop's safe state (fault, idle): sent as 0 at
         once, not averaged with the ticks before it."""
         end = self.runner.ticks

@@ -20,7 +20,7 @@ any of them to numpy/pandas users):
                stamp by the link's clock sync, on the loop's time axis; NaN before the sync),
                mcu_ticks, encoder (count), phi (rad). `tvsctl export` makes `phi` and `omega`
                from them: the angle where and when the MCU sampled it, whatever the frames'
-               way to the control thread (README, model doctor step 8). 32 B a frame: 64 kB/s
+               way to the control thread (docs/measurements/doctor-method.md, step 8). 32 B a frame: 64 kB/s
                at the ATmega's 2 kHz (a quarter of a SIL identify recording), 320 kB/s at 10 kHz.
 - `excitation` what `identify` played (tvsd/daemon/identify.py): t (the loop's time axis, as
                `loop`), d_rps added to the speed reference, d_volts added to the command.

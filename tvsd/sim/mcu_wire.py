@@ -2,7 +2,8 @@
 
 A real UART (or USB link) from the host has the host's bytes on the wire when they are written.
 The SIL's pty hands them to the virtual MCU through the kernel's tty flip-buffer work, a
-normal-priority kworker that CPU hogs hold off for tens to hundreds of ms (README, "The SIL's MCU
+normal-priority kworker that CPU hogs hold off for tens to hundreds of ms (docs/measurements/soak-and-load.md,
+"The SIL's MCU
 link under CPU hogs: the pty's kernel worker"). A heartbeat the host sent in time could then reach
 a core that, paced at real time, had already run past last heartbeat + watchdog and cut: the
 pty's expiry, not the host's. So the firmware's watchdog cut waits at that edge (counted from the
@@ -13,13 +14,14 @@ at or after it has (the host's own gap crossed it: cut before that heartbeat is 
 that much late). Only the cut waits (a SIL-only core hook, CORE_SIL_HOOKS): the core's clock,
 its state frames and the plant run on at real time. Holding the whole core (and the plant) at the
 edge instead was tried first: each wait ended in a catch-up burst that kept the SIL process's
-threads off the CPU, and the pty's delays grew with the allowance (README).
+threads off the CPU, and the pty's delays grew with the allowance (docs/measurements/soak-and-load.md).
 
 Not reproduced: a frame read while the cut waits is handled as if the watchdog were armed; if the
 host's gap was real, the chip had refused it (ACK_NO_HEARTBEAT) and here it is taken, then cut.
 
 G, the allowance: from the heartbeats' send -> pump-read delay measured on this 2-core machine
-(``scripts/pty_wire_delay.py``, and the soak's SIL process: README, the pty's kernel worker).
+(``scripts/pty_wire_delay.py``, and the soak's SIL process: docs/measurements/soak-and-load.md, the pty's
+kernel worker).
 A wait starts only for a heartbeat read more than watchdog − period late (37.5 ms at the shipped
 50 / 12.5 ms), and G covers the rest of the delay. Hogs alone: max 1.5 / 48.5 / 5.4 ms (0 / 1 /
 2 hogs, 30 s each). The soak (2 hogs, 50 RPC clients, the daemon): 3-8 % of the heartbeats over

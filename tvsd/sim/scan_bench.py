@@ -1,4 +1,4 @@
-"""Benchmarks of the scan pipeline (for `tvsctl bench` and README's Performance table)."""
+"""Benchmarks of the scan pipeline (for `tvsctl bench` and README's Benchmarks table)."""
 
 from __future__ import annotations
 

@@ -58,7 +58,7 @@ def default_library() -> Path:
     raise VirtualMcuError(
         f"this tvsd install has no virtual MCU library ({PACKAGED_MODULE.replace('.', '/')}*.so): "
         "the wheel was built without it. Fix: reinstall from a wheel built on a machine with a C "
-        "compiler (pip wheel . in the source tree; README, Installing on the scanner)"
+        "compiler (pip wheel . in the source tree; README, On the scanner)"
     )
 
 
