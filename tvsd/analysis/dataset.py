@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tvsd.analysis import timing
 from tvsd.config import Config
 from tvsd.errors import DataFileError
 from tvsd.recording.csvfile import read as read_recording
@@ -113,26 +114,37 @@ def load(path: Path, cfg: Config) -> Dataset:
         # which tvsd's convention (verdict._convention_unpinned) calls row k+1.
         u = np.concatenate([u[:1], u[:-1]])
     if unit in ("V", "duty"):
-        b_u, b_omega, lag = p.kM * p.ku / p.R, p.kM * p.kb / p.R, p.L / p.R
+        b_u, b_omega, lag_s = p.kM * p.ku / p.R, p.kM * p.kb / p.R, p.L / p.R
     elif unit == "A":
-        b_u, b_omega, lag = p.kM, 0.0, 0.0
+        b_u, b_omega, lag_s = p.kM, 0.0, 0.0
     else:  # N*m or N
-        b_u, b_omega, lag = 1.0, 0.0, 0.0
+        b_u, b_omega, lag_s = 1.0, 0.0, 0.0
     linear = unit == "N"
     refs = {k: v for k, v in rec.extra.items() if k in ("omega_ref", "phi_ref", "u_exc")}
+    meta, speed = dict(rec.meta), rec.omega
+    if rec.phi_measured:
+        # The delay is measured against a period-mean ω (timing.py): a speed with other timing is
+        # moved onto it (the lag measured against φ's backward difference), not read as a delay.
+        lag, share = timing.speed_lag(rec.omega, rec.phi, rec.sample_rate_hz)
+        if timing.off_reference(lag, share):
+            speed = timing.retimed(rec.omega, lag)
+            meta["omega_timing"] = (
+                f"omega lagged phi's period mean by {lag:.2f} samples ({100 * share:.0f} % of their "
+                "in-band difference): advanced by it"
+            )
     return Dataset(
         name=path.name,
         t=rec.t,
         u=u,
         position=rec.phi,
-        speed=rec.omega,
+        speed=speed,
         sample_rate_hz=rec.sample_rate_hz,
         b_u=b_u,
         b_omega=b_omega,
         units=LINEAR if linear else ROTARY,
         offset_term=offset_term(unit),
-        lag_s=lag,
-        meta=dict(rec.meta),
+        lag_s=lag_s,
+        meta=meta,
         path=path,
         u_unit="V" if unit == "duty" else unit,
         refs=refs,

@@ -42,6 +42,10 @@ FORMATS = ("csv", "parquet", "mcap")
 SIGNIFICANT_DIGITS = 9  # tvsd.recording.csvfile.write keeps %.9g
 LISTED_GAPS = 50  # gaps listed one by one in the metadata; more are only counted
 U_UNIT = "V"  # the daemon's command is the drive voltage (docs/architecture.md, u_unit)
+# Both u's (the frames sent, sent_column; the law's, loop channel) are means over the bin that
+# ends at the row's time, as omega is (the frames' angle difference over it, export_states):
+# tvsd's convention, so the doctor's delay on an export is against it, not a sample unsure.
+U_SAMPLING = "mean"
 EXCITATION_CHANNEL = "excitation"  # what identify played (tvsd/daemon/session_recording.py)
 U_EXC = "u_exc"  # its voltage, per sample: the doctor's instrument in closed loop
 STATES_CHANNEL = "states"  # the MCU's encoder frames (tvsd/daemon/session_recording.py)
@@ -132,6 +136,7 @@ def _run(args: argparse.Namespace) -> int:
         "started_utc": rec.header.get("started_utc", "unknown"),
         "channel": args.channel,
         "u_unit": U_UNIT,
+        **({"u_sampling": U_SAMPLING} if args.channel == LOOP_CHANNEL else {}),
         **(
             {"u_source": "the PWM frames sent to the drive, held (u_law: the control law's mean)"}
             if sent
