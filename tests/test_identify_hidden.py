@@ -106,6 +106,9 @@ def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_p
     header = next(line for line in out.read_text().splitlines() if not line.startswith("#"))
     assert {"omega_ref", "phi_ref", "u_exc", "omega_loop"} <= set(header.split(","))
     assert "encoder frames" in str(meta["omega_source"]), meta
+    # u and omega are both means over each 1 ms bin: said so, the doctor's delay is measured
+    # against that, not a sample unsure (undeclared, a delay under 2 ms was not named).
+    assert meta["u_sampling"] == "mean", meta
     ana = subprocess.run(
         [*cli, "analyze", str(out), "--json", "--quiet"], capture_output=True, text=True, timeout=300
     )
