@@ -26,7 +26,7 @@ from tvsd.hw.imu_clock import Clock
 from tvsd.hw.imu_settings import ImuSettings
 from tvsd.sim.i2c_bus import SimI2CBus
 from tvsd.sim.imu_motion import MotionSource
-from tvsd.sim.twin_kernels import dlpf_counts
+from tvsd.sim.twin_kernels import dlpf_counts, warm
 
 GYRO_NOISE_DPS_RTHZ = 0.005  # rate noise spectral density (datasheet)
 ACCEL_NOISE_G_RTHZ = 400e-6  # power spectral density (datasheet)
@@ -94,6 +94,8 @@ class SimMpu6050:
         if signal not in ("motion", "counter") or (signal == "motion" and motion is None):
             raise ValueError("signal must be 'counter', or 'motion' with a MotionSource")
         self.motion, self.clock, self.signal = motion, clock, signal
+        if signal == "motion":
+            warm()  # its kernels compiled before the first poll, not in it
         self.who_am_i, self.rate_error, self.st_error = who_am_i, rate_error, st_error
         rng = np.random.default_rng(seed)
         self._rng = rng

@@ -65,3 +65,12 @@ def leaky_rate(
             pos = nxt
         rate[i] = omega
     return rate, pos, omega
+
+
+def warm() -> None:
+    """Compile (or load from numba's cache) both kernels now, on dummy data: a twin built at a
+    bus's start must not spend a first poll compiling (seconds on a loaded machine: the reader
+    declared the sensor lost before its first sample)."""
+    sos = np.array([[1.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
+    dlpf_counts(sos, np.zeros((1, 2, 6)), np.zeros((1, 6)), np.ones(6), np.zeros(6))
+    leaky_rate(np.zeros(1), np.ones(1), np.zeros(1), 1.0, 1.0, 0.0, 0.0)
