@@ -83,3 +83,27 @@ def test_a_count_in_a_combined_transfer_is_latched_at_its_end() -> None:
     for twin, count in zip(twins, counts, strict=True):
         twin.update(t_end)  # every frame due by the end: none is missing from the count
         assert count == len(twin.fifo) > 20 * reg.FRAME_BYTES
+
+
+def test_the_bus_threads_timing_splits_service_into_bit_time_cpu_and_waits() -> None:
+    """TimedBus (the SIL bus thread's handler, `soak_sil_bus` and `bench --only imu_sil`): the
+    bit time is the bus's own count of bits at 400 kHz; the service holds at least that (the
+    transfer sleeps it); the p99 is the upper edge of its 0.1 ms bin."""
+    from tvsd.hw import i2c_remote as wire
+    from tvsd.hw.imu_clock import MonotonicClock
+    from tvsd.sim.bus_timing import BIN_MS, TimedBus
+
+    bus, _ = sil_pair(S, MonotonicClock(), None, signal="counter")
+    timed = TimedBus(wire.BusHandler(bus))
+    addr = S.addresses["pl"]
+    payload = wire.MESSAGE.pack(addr, 0, 1) + bytes([reg.WHO_AM_I]) + wire.MESSAGE.pack(addr, 1, 200)
+    for _ in range(5):
+        timed(wire.OP_RDWR, payload)
+    got = timed.report()
+    bit_ms = 1e3 * (27 + 9 * 200 + 2) / 400e3  # one [register] + read of 200 bytes: 4.6 ms
+    assert got["requests"] == 5 and got["bit_time_mean_ms"] == pytest.approx(bit_ms, abs=1e-3)
+    assert got["service_mean_ms"] >= bit_ms and got["excess_mean_ms"] >= 0.0
+    assert got["service_p99_ms"] >= got["service_max_ms"] - BIN_MS
+    # a sleep takes no CPU: the thread's CPU fits in what is not bit time (a bin for the clocks'
+    # rounding: thread_time and monotonic are read apart)
+    assert 0.0 < got["cpu_mean_ms"] <= got["service_mean_ms"] - bit_ms + BIN_MS
