@@ -43,6 +43,12 @@ def _imu() -> dict[str, Any]:
     return {f"imu_{k}": v for k, v in bench_capture(5.0).items()}
 
 
+def _imu_sil() -> dict[str, Any]:
+    from tvsd.sim.i2c_bench import bench_sil_bus
+
+    return bench_sil_bus()
+
+
 def _mcu() -> dict[str, Any]:
     from tvsd.hw.mcu.framing import bench_decode
 
@@ -118,6 +124,7 @@ BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "sim": _sim,
     "scan": _scan,
     "imu": _imu,
+    "imu_sil": _imu_sil,
     "mcu": _mcu,
     "mcu_io": _mcu_io,
     "mcu_sil": _mcu_sil,

@@ -40,9 +40,29 @@ LOOP_CHANNEL = "loop"
 LOOP_FIELDS = (("t", "<f8"), ("u", "<f8"), ("omega", "<f8"), ("phi", "<f8"))
 
 
+_HEAD = struct.Struct("<2sBHI")  # the record's fields before its crc32
+_CRC = struct.Struct("<I")
+
+
+def record_head(kind: int, channel: int, payload: bytes | memoryview) -> bytes:
+    """A record's RECORD.size bytes before its payload: the fields and the crc32."""
+    head = _HEAD.pack(SYNC, kind, channel, len(payload))
+    return head + _CRC.pack(zlib.crc32(payload, zlib.crc32(head)))
+
+
 def encode(kind: int, channel: int, payload: bytes) -> bytes:
-    head = struct.pack("<2sBHI", SYNC, kind, channel, len(payload))
-    return head + struct.pack("<I", zlib.crc32(payload, zlib.crc32(head))) + payload
+    return record_head(kind, channel, payload) + payload
+
+
+def encode_into(buf: memoryview, pos: int, kind: int, channel: int, payload: bytes) -> int:
+    """encode()'s bytes written into `buf` at `pos` (no new object: the recorder's fixed
+    buffer); the record's end offset. `buf` must have RECORD.size + len(payload) bytes there."""
+    end = pos + RECORD.size + len(payload)
+    _HEAD.pack_into(buf, pos, SYNC, kind, channel, len(payload))
+    crc = zlib.crc32(payload, zlib.crc32(buf[pos : pos + _HEAD.size]))
+    _CRC.pack_into(buf, pos + _HEAD.size, crc)
+    buf[pos + RECORD.size : end] = payload
+    return end
 
 
 def record_at(data: bytes, pos: int) -> tuple[int, int, bytes, int] | None:

@@ -7,10 +7,11 @@ blocking: if more than ``max_pending_bytes`` wait for the disk, the batch is dro
 It owns writing only. The bytes on disk are `tvsd.recording.format`; reading them back, damage
 included, is `tvsd.recording.reader` (``open_recording``).
 
-Crash safety: the writer hands its buffer to the kernel (``os.write``) every ``flush_interval_s``
-(0.2 s) and fsyncs every ``fsync_interval_s`` (1 s). ``kill -9`` of the daemon loses only what had
-not reached the kernel: at most ~flush_interval_s plus the queue's backlog; a power cut loses at
-most the last fsync interval. The reader then finds a torn tail at most, reported, not raised.
+Crash safety: the writer hands its buffer (one fixed block, `tvsd.recording.buffer`) to the
+kernel (``os.write``) every ``flush_interval_s`` (0.2 s) and fsyncs every ``fsync_interval_s``
+(1 s). ``kill -9`` of the daemon loses only what had not reached the kernel: at most
+~flush_interval_s plus the queue's backlog; a power cut loses at most the last fsync interval.
+The reader then finds a torn tail at most, reported, not raised.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
 from tvsd.errors import UsageError
+from tvsd.recording.buffer import FLUSH_BYTES, RecordBuffer
 from tvsd.recording.format import (
     CHANNEL,
     CONFIG,
@@ -42,6 +44,7 @@ from tvsd.recording.format import (
     SEGMENT_PREFIX,
     STATS,
     encode,
+    record_head,
     segment_name,
 )
 
@@ -122,6 +125,7 @@ class Recorder:
         self._segment = -1
         self._fd = -1
         self._segment_size = 0
+        self._buffer = RecordBuffer(FLUSH_BYTES)  # allocated once: see tvsd.recording.buffer
         try:  # the first segment synchronously: a bad directory fails here, not in the thread
             self._open_segment()
         except OSError as exc:
@@ -183,7 +187,6 @@ class Recorder:
 
     # -- writer thread -------------------------------------------------------------------------
     def _writer(self) -> None:
-        buf = bytearray()
         last_flush = last_sync = time.monotonic()
         last_drops: tuple[int, ...] = ()
         stop = False
@@ -196,43 +199,70 @@ class Recorder:
                         stop = True
                         break
                     kind, cid, payload = item
-                    buf += encode(kind, cid, payload)
+                    self._put(kind, cid, payload)
                     if kind in (DATA, MARK):
                         with self._lock:
                             self._pending -= len(payload)
-                    if self._full(buf):
+                    if self._full():
                         break
                     item = self._queue.get_nowait()
             except queue.Empty:
                 pass
             now = time.monotonic()
-            try:
-                if stop or self._full(buf) or now - last_flush >= self.flush_interval_s:
-                    if self.error is None:
-                        drops = self._drop_counts()
-                        if drops != last_drops and now - last_sync >= self.fsync_interval_s:
-                            buf += encode(STATS, 0, self._stats_payload(final=False))
-                            last_drops = drops
-                        self._write(buf)
-                    buf.clear()
-                    last_flush = now
-                if self.error is None and (stop or now - last_sync >= self.fsync_interval_s):
+            if stop or self._full() or now - last_flush >= self.flush_interval_s:
+                if self.error is None:
+                    drops = self._drop_counts()
+                    if drops != last_drops and now - last_sync >= self.fsync_interval_s:
+                        self._put(STATS, 0, self._stats_payload(final=False))
+                        last_drops = drops
+                self._flush()
+                last_flush = now
+            if self.error is None and (stop or now - last_sync >= self.fsync_interval_s):
+                try:
                     os.fsync(self._fd)
-                    last_sync = now
-            except OSError as exc:  # disk full, I/O error: stop writing, keep the daemon alive
-                with self._lock:
-                    self.error = exc
-                buf.clear()
+                except OSError as exc:
+                    self._failed(exc)
+                last_sync = now
 
-    def _full(self, buf: bytearray) -> bool:
-        # Hand over 1 MiB at a time, and end a segment close to segment_bytes.
-        return len(buf) >= 1 << 20 or self._segment_size + len(buf) >= self.segment_bytes
+    def _put(self, kind: int, cid: int, payload: bytes) -> None:
+        """One record into the fixed buffer; if it has no room, the buffer is written out first,
+        and a record larger than the whole buffer goes to the kernel on its own (no growth)."""
+        if self._buffer.add(kind, cid, payload):
+            return
+        self._flush()
+        if not self._buffer.add(kind, cid, payload) and self.error is None:
+            try:
+                self._write(record_head(kind, cid, payload), payload)
+            except OSError as exc:
+                self._failed(exc)
 
-    def _write(self, buf: bytearray) -> None:
-        view = memoryview(buf)
-        while view:
-            view = view[os.write(self._fd, view) :]
-        self._segment_size += len(buf)
+    def _flush(self) -> None:
+        """Hand the buffer to the kernel (after a disk error: drop it) and empty it."""
+        if self.error is None and self._buffer.used:
+            try:
+                self._write(self._buffer.data())
+            except OSError as exc:
+                self._failed(exc)
+        self._buffer.clear()
+
+    def _failed(self, exc: OSError) -> None:
+        # disk full, I/O error: stop writing, keep the daemon alive
+        with self._lock:
+            self.error = exc
+
+    def _full(self) -> bool:
+        # Hand over FLUSH_BYTES at a time, and end a segment close to segment_bytes.
+        used = self._buffer.used
+        return used >= FLUSH_BYTES or self._segment_size + used >= self.segment_bytes
+
+    def _write(self, *parts: bytes | memoryview) -> None:
+        """The parts to the segment, one after the other; then a new segment if this one is full
+        (a record is never split across two)."""
+        for part in parts:
+            view = memoryview(part)
+            while view:
+                view = view[os.write(self._fd, view) :]
+            self._segment_size += len(part)
         if self._segment_size >= self.segment_bytes:
             self._open_segment()
 

@@ -29,6 +29,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from tvsd.errors import UsageError
+from tvsd.sim.twin_kernels import leaky_rate
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
@@ -296,21 +297,11 @@ class PlantMotion:
             raise ValueError(f"motion sampled backwards in time ({s[0]} < {self._s_last})")
         h = self.plant.history(self._s_last)
         ends, accel = h.t, h.disturbance * self.scale * (np.abs(h.omega) >= self.still_below_rad_s)
-        stop = ends[-1] + self.hold_s  # past it the plant is not running: no acceleration
-        tau, omega, pos = self.leak_tau_s, self._omega, self._s_last
-        rate = np.empty(s.size)
-        k, last = 0, ends.size - 1
-        for i, si in enumerate(s.tolist()):
-            while pos < si:  # exact over each constant piece: ω̇ = a − ω/τ
-                while k < last and ends[k] <= pos:
-                    k += 1
-                end = ends[k] if ends[k] > pos else stop if pos < stop else math.inf
-                nxt = min(si, end)
-                a = accel[k] if pos < stop else 0.0
-                c = math.exp(-(nxt - pos) / tau)
-                omega = c * omega + tau * (1.0 - c) * a
-                pos = nxt
-            rate[i] = omega
+        stop = float(ends[-1] + self.hold_s)  # past it the plant is not running: no acceleration
+        rate, pos, omega = leaky_rate(  # exact over each constant piece: ω̇ = a − ω/τ
+            s, np.ascontiguousarray(ends, np.float64), np.ascontiguousarray(accel, np.float64),
+            stop, self.leak_tau_s, self._omega, self._s_last,
+        )  # fmt: skip
         self._s_last, self._omega = pos, omega
         now = h.at(s)
         turning = np.abs(now.omega) >= self.still_below_rad_s

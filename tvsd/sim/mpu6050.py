@@ -19,13 +19,14 @@ import time
 from collections.abc import Mapping
 
 import numpy as np
-from scipy.signal import butter, group_delay, sos2tf, sosfilt, sosfilt_zi
+from scipy.signal import butter, group_delay, sos2tf, sosfilt_zi
 
 from tvsd.hw import mpu6050_registers as reg
 from tvsd.hw.imu_clock import Clock
 from tvsd.hw.imu_settings import ImuSettings
 from tvsd.sim.i2c_bus import SimI2CBus
 from tvsd.sim.imu_motion import MotionSource
+from tvsd.sim.twin_kernels import dlpf_counts, warm
 
 GYRO_NOISE_DPS_RTHZ = 0.005  # rate noise spectral density (datasheet)
 ACCEL_NOISE_G_RTHZ = 400e-6  # power spectral density (datasheet)
@@ -93,6 +94,8 @@ class SimMpu6050:
         if signal not in ("motion", "counter") or (signal == "motion" and motion is None):
             raise ValueError("signal must be 'counter', or 'motion' with a MotionSource")
         self.motion, self.clock, self.signal = motion, clock, signal
+        if signal == "motion":
+            warm()  # its kernels compiled before the first poll, not in it
         self.who_am_i, self.rate_error, self.st_error = who_am_i, rate_error, st_error
         rng = np.random.default_rng(seed)
         self._rng = rng
@@ -169,11 +172,11 @@ class SimMpu6050:
         if self._sos is None:
             self._sos = dlpf_sos(self.regs[reg.CONFIG] & 7, rate)
             # start at steady state on the first sample: no power-on transient from gravity
-            self._zi = sosfilt_zi(self._sos)[:, :, None] * x[0][None, None, :]
-        x, self._zi = sosfilt(self._sos, x, axis=0, zi=self._zi)
+            self._zi = np.ascontiguousarray(sosfilt_zi(self._sos)[:, :, None] * x[0][None, None, :])
+        assert self._zi is not None
         lsb = np.array([a_lsb] * 3 + [g_lsb] * 3)
-        counts = np.rint(x / lsb + self._self_test_lsb())
-        return np.clip(counts, -32768, 32767).astype(np.int64)
+        # the DLPF (sosfilt's arithmetic, zi kept), the self-test offset, the ADC's rounding and clip
+        return dlpf_counts(self._sos, self._zi, x, lsb, self._self_test_lsb())
 
     def update(self, now: float | None = None) -> None:
         """Take the samples due by now (or by `now`: the bus's time inside a combined transfer

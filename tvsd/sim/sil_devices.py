@@ -28,7 +28,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -68,9 +68,12 @@ class SilDevices:
         self._watching: asyncio.AbstractEventLoop | None = None
 
     @classmethod
-    def spawn(cls, params: SilParams, *, realtime: bool = False) -> SilDevices:
+    def spawn(
+        cls, params: SilParams, *, realtime: bool = False, env: Mapping[str, str] | None = None
+    ) -> SilDevices:
         """Start the process; `realtime`: SCHED_FIFO for it (tvsd --realtime): the devices stand
-        in for hardware, which has its own CPU."""
+        in for hardware, which has its own CPU. `env`: variables added to its environment (a
+        benchmark's $TVSD_SIL_STALLS)."""
         ctl_parent, ctl_child = socket.socketpair()
         bus_parent, bus_child = socket.socketpair()
         try:
@@ -88,6 +91,7 @@ class SilDevices:
                     **os.environ,
                     "OPENBLAS_NUM_THREADS": "1",
                     "OMP_NUM_THREADS": "1",
+                    **(env or {}),
                     "PYTHONPATH": _own_path(),
                 },
                 pass_fds=(ctl_child.fileno(), bus_child.fileno()),

@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from tvsd.sim import proc_where as W
+from tvsd.sim.bus_timing import TimedBus  # noqa: F401  (sil_process's import: the bus thread's timing)
 
 ENV_STALLS = "TVSD_SIL_STALLS"
 TICK_S = 0.01
@@ -283,41 +284,3 @@ class StallWatch:
         with contextlib.suppress(OSError):
             tmp.write_text(json.dumps(self.report()))
             tmp.replace(target)
-
-
-SERVICE_EDGES_MS = (1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
-
-
-class TimedBus:
-    """The bus thread's handler (tvsd.hw.i2c_remote.BusHandler), each request's service timed:
-    from its bytes read to its reply made (the twins' work, the bit time slept, the GIL's
-    waits). Beside the daemon's round trips, what is left of them is the way there and back."""
-
-    def __init__(self, handle: Any) -> None:
-        self.handle = handle
-        self.requests = 0
-        self.service_max_ms = self.service_sum_ms = 0.0
-        self.over = [0] * len(SERVICE_EDGES_MS)
-
-    def __call__(self, op: int, payload: bytes) -> bytes:
-        t0 = time.monotonic()
-        try:
-            out: bytes = self.handle(op, payload)
-            return out
-        finally:
-            ms = 1e3 * (time.monotonic() - t0)
-            self.requests += 1
-            self.service_sum_ms += ms
-            self.service_max_ms = max(self.service_max_ms, ms)
-            for i, edge in enumerate(SERVICE_EDGES_MS):
-                if ms > edge:
-                    self.over[i] += 1
-
-    def report(self) -> dict[str, Any]:
-        n = max(self.requests, 1)
-        return {
-            "requests": self.requests,
-            "service_mean_ms": round(self.service_sum_ms / n, 3),
-            "service_max_ms": round(self.service_max_ms, 3),
-            "service_over_ms": {f"{e:g}": c for e, c in zip(SERVICE_EDGES_MS, self.over, strict=True)},
-        }
