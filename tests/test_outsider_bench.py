@@ -26,11 +26,6 @@ from tvsd.analysis.noise import NoiseReport, colour_test, spectral_cause
 
 TVSCTL = str(Path(sys.executable).parent / "tvsctl")
 DATA = Path(__file__).parent / "data" / "outsider"
-QUANTISATION_READS_AS_COLOUR = pytest.mark.xfail(
-    strict=True,
-    reason="an encoder's quantisation (f⁴) reads as colour: the f⁴ term that fixed it also hid "
-    "tvsd's own 20 ms OU colour, so it is out (tvsd/analysis/noise.py's docstring)",
-)
 
 
 @pytest.mark.slow
@@ -68,8 +63,8 @@ def _analyze(path: Path) -> dict:
 # generator holds each command from its sample (one sample later than tvsd's interval mean) and
 # declares nothing, so the delay is named only past two samples (docs/measurements/lagdelay.md).
 CASES = [
-    pytest.param(91001, "none", 0.0, marks=QUANTISATION_READS_AS_COLOUR),
-    pytest.param(91002, "none", 0.0, marks=QUANTISATION_READS_AS_COLOUR),
+    (91001, "none", 0.0),  # `colored_noise` before the quantisation floor (tvsd.analysis.quantisation)
+    (91002, "none", 0.0),
     (91003, "imbalance", 20.0),
     (91004, "delay", 20.0),
 ]
