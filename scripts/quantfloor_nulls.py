@@ -61,10 +61,11 @@ def summary(paths: list[Path]) -> None:
         lo, hi = cp95(k, n)
         rate = f"{100 * k / n:.1f} %, 95 % CI {100 * lo:.1f}–{100 * hi:.1f} %"
         print(f"{label}: {k}/{n} coloured at p < {COLOUR_P:g} ({rate})")
-    tops = sorted(r.get("band_top_hz", float("nan")) for r in rows)
+    tops = sorted(r["band_top_hz"] for r in rows if "band_top_hz" in r)  # rows of an older run lack it
     short = sum(t < 3.5 for t in tops)
-    print(f"band seen above the floor: median top {tops[n // 2]:.1f} Hz, 10 % point {tops[n // 10]:.1f} Hz; "
-          f"{short}/{n} too short to test (< 3 Hz)")  # fmt: skip
+    if tops:
+        top = f"median top {tops[len(tops) // 2]:.1f} Hz, 10 % point {tops[len(tops) // 10]:.1f} Hz"
+        print(f"band seen above the floor: {top}; {short}/{len(tops)} too short to test (< 3 Hz)")
     for prof in qn.PROFILES:
         sub = [r for r in rows if r["profile"] == prof]
         k = sum(r["p_floor"] < COLOUR_P for r in sub)
