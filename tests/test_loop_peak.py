@@ -28,8 +28,9 @@ def _analyze(path: Path) -> dict:
 @pytest.mark.slow
 @pytest.mark.xfail(
     strict=True,
-    reason="without the f⁴ floor (out: it hid tvsd's own 20 ms colour, tvsd/analysis/noise.py) the "
-    "least-squares residual of o07007 shows no 10.6 Hz peak to refuse; the answer is none either way",
+    reason="the peak showed only with a fitted f⁴ term (out: it hid tvsd's own 20 ms colour); the "
+    "known quantisation floor (tvsd/analysis/quantisation.py) is zero here (o07007's ω is a tach, on "
+    "no grid), so the least-squares residual shows no 10.6 Hz peak to refuse; the answer is none either way",
 )
 def test_closed_loop_null_peak_is_the_loops_not_a_mode(tmp_path: Path) -> None:
     """Outsider null o07007 (seed 7007 of tests/outsider_bench.py, drawn exactly as in the batch

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from tvsd.analysis import absorber, instrument, selection, sense
+from tvsd.analysis import absorber, instrument, quantisation, selection, sense
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis.dataset import Dataset
@@ -215,7 +215,9 @@ def _diagnose(
     say("testing the noise colour")
     rate_rows = 1.0 / float(np.median(np.diff(prep.t_rows)))
     resid = np.where(out.keep, instrument.residual(measured, design, verdict), 0.0)
-    noise = analyse(resid, rate_rows, params["J"] if params["J"] > 0 else 1.0, prep.band.cutoff_hz)
+    # An encoder-difference speed's quantisation: a known floor in both spectral shapes.
+    floor = quantisation.floor(prep, out.keep)
+    noise = analyse(resid, rate_rows, params["J"] if params["J"] > 0 else 1.0, prep.band.cutoff_hz, floor)
     ranked = verdict.ranked
     # Closed loop: the feedback shapes the equation's residual (the command answers its noise,
     # and least squares on that command leaves part of the noise's answer in the residual), so
@@ -404,7 +406,8 @@ def _peak_in_plant(
     if resid is None:
         return False
     rate = 1.0 / float(np.median(np.diff(prep.t_rows)))
-    again = analyse(np.where(keep, resid, 0.0), rate, 1.0, prep.band.cutoff_hz)
+    floor = quantisation.floor(prep, keep)
+    again = analyse(np.where(keep, resid, 0.0), rate, 1.0, prep.band.cutoff_hz, floor)
     if spectral_cause(again, COLOUR_P) != "resonance":
         return False
     df = float(noise.freq[1] - noise.freq[0]) if len(noise.freq) > 1 else 0.0

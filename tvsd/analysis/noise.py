@@ -5,13 +5,14 @@ speed-measurement noise. The paper's Δv (eq. 12) is white: a flat spectrum in t
 low-pass correlated Δv (Ornstein–Uhlenbeck, correlation time τ) is flat only below 1/(2πτ).
 The test fits both spectral shapes to the residual's Welch spectrum by Whittle's likelihood and
 compares them with a likelihood ratio (χ² with one degree of freedom: the extra τ):
-    white:    S(f) = a + b·f²
-    coloured: S(f) = a / (1 + (2πfτ)²) + b·f²
+    white:    S(f) = a + b·f² + F(f)
+    coloured: S(f) = a / (1 + (2πfτ)²) + b·f² + F(f)
 An encoder's quantisation (white in φ: f⁴ in the residual once the speed is the position's
-difference) is not in either shape: an f⁴ term made 4 of 4 encoder-difference nulls of
-tests/outsider_bench.py flat, but also bent the flat shape to a 20 ms OU colour's roll-off
-(tvsd's own hidden-colour case: likelihood ratio 18.7 → 4.6, missed); `tvsctl sim record`'s files
-declare an 8192-count encoder too, so the header cannot switch it (docs/measurements/outsider.md).
+difference) is in both shapes as a known floor F(f) (tvsd.analysis.quantisation: its level from
+the count step and the recorded speed, no free parameter; zero when ω is not a count
+difference). A fitted f⁴ term made the outsider's encoder nulls flat but also bent the flat
+shape to tvsd's own 20 ms OU colour's roll-off (likelihood ratio 18.7 → 4.6, missed); a known
+floor cannot bend (docs/measurements/quantfloor.md).
 The Whittle sum treats every bin of every segment as independent; with a Hann window and 50 %
 overlap they are not (neighbouring bins and overlapping segments share data), so the ratio is
 scaled by the effective number of segments (`effective_segments`), not the count.
@@ -28,8 +29,11 @@ from scipy.optimize import minimize
 from scipy.signal import get_window, welch
 from scipy.stats import chi2
 
+from tvsd.analysis.quantisation import Floor
+
 SEGMENT_S = 4.0
 BAND_LOW_HZ = 0.5  # the spectral tests' lowest frequency
+MIN_SEEN_BINS = 12  # 3 Hz of band above the quantisation's floor: fewer, and no shape is told
 PEAK_Q = 5.0  # a spectral peak this sharp is a structural mode; broader is a low-pass colour
 # The peak against the flat floor (3 more parameters, its frequency scanned): the Whittle ratio
 # on a 50 %-overlapped Welch spectrum is not χ²₃. Calibrated on 700 simulated null residuals
@@ -103,30 +107,33 @@ def ljung_box(x: np.ndarray, lags: int = 20) -> float:
     return float(chi2.sf(n * (n + 2) * q, lags))
 
 
-def _whittle(params: np.ndarray, f: np.ndarray, p: np.ndarray, coloured: bool) -> float:
+def _whittle(params: np.ndarray, f: np.ndarray, p: np.ndarray, coloured: bool, known: np.ndarray) -> float:
     if np.any(np.abs(params) > 300):  # exp would overflow: outside any physical spectrum
         return math.inf
     a, b = math.exp(params[0]), math.exp(params[1])
-    s = a + b * f**2
+    s = a + b * f**2 + known
     if coloured:
         tau = math.exp(params[2])
-        s = a / (1 + (2 * math.pi * f * tau) ** 2) + b * f**2
+        s = a / (1 + (2 * math.pi * f * tau) ** 2) + b * f**2 + known
     return float(np.sum(np.log(s) + p / s))
 
 
-def _whittle_peak(params: np.ndarray, f: np.ndarray, p: np.ndarray) -> float:
+def _whittle_peak(params: np.ndarray, f: np.ndarray, p: np.ndarray, known: np.ndarray) -> float:
     if np.any(np.abs(params) > 300):  # exp would overflow: outside any physical spectrum
         return math.inf
     a, b, A, f0, q = (math.exp(x) for x in params)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        s = a + b * f**2 + A / (1 + q**2 * (f / f0 - f0 / f) ** 2)
+        s = a + b * f**2 + known + A / (1 + q**2 * (f / f0 - f0 / f) ** 2)
         value = float(np.sum(np.log(s) + p / s))
     return value if math.isfinite(value) else math.inf
 
 
-def _peak(fm: np.ndarray, pm: np.ndarray, a0: float, b0: float) -> tuple[float, float, float, float]:
-    """Whittle fit of a flat + f² floor with one resonant (Lorentzian) peak: (fun, f0, Q, power)."""
-    floor = a0 + b0 * fm**2
+def _peak(
+    fm: np.ndarray, pm: np.ndarray, a0: float, b0: float, known: np.ndarray
+) -> tuple[float, float, float, float]:
+    """Whittle fit of a flat + f² (+ the known quantisation) floor with one resonant (Lorentzian)
+    peak: (fun, f0, Q, power)."""
+    floor = a0 + b0 * fm**2 + known
     k = int(np.argmax(pm / floor))
     best = None
     for q0 in (3.0, 10.0, 30.0):
@@ -137,7 +144,9 @@ def _peak(fm: np.ndarray, pm: np.ndarray, a0: float, b0: float) -> tuple[float, 
             math.log(fm[k]),
             math.log(q0),
         ]
-        r = minimize(_whittle_peak, start, args=(fm, pm), method="Nelder-Mead", options={"maxiter": 3000})
+        r = minimize(
+            _whittle_peak, start, args=(fm, pm, known), method="Nelder-Mead", options={"maxiter": 3000}
+        )
         if best is None or r.fun < best.fun:
             best = r
     assert best is not None
@@ -165,16 +174,24 @@ def effective_segments(segments: int, nper: int) -> float:
     return float(k * k * w2.sum() ** 2 / (nper * np.sum(W * W)))
 
 
-def analyse(residual: np.ndarray, rate_hz: float, J: float, band_hz: float) -> NoiseReport:
+def analyse(
+    residual: np.ndarray, rate_hz: float, J: float, band_hz: float, floor: Floor | None = None
+) -> NoiseReport:
+    """The spectral tests on the residual rows; `floor`: the encoder quantisation's known PSD
+    (tvsd.analysis.quantisation.floor), None when the speed is not a count difference."""
     f, p, segments = _welch(residual, rate_hz)
-    return spectrum_report(f, p, segments, J, band_hz, ljung_box(residual))
+    return spectrum_report(f, p, segments, J, band_hz, ljung_box(residual), floor)
 
 
-def colour_test(residual: np.ndarray, rate_hz: float, band_hz: float) -> tuple[float, float]:
+def colour_test(
+    residual: np.ndarray, rate_hz: float, band_hz: float, floor: Floor | None = None
+) -> tuple[float, float]:
     """The colour test alone (likelihood ratio, p-value; χ², 1 dof), without the peak's fits."""
     f, p, segments = _welch(residual, rate_hz)
-    fm, pm, a0, b0 = _in_band(f, p, band_hz)
-    white, best = _colour_fits(fm, pm, a0, b0)
+    fm, pm, known, a0, b0 = _in_band(f, p, band_hz, floor)
+    if len(fm) < MIN_SEEN_BINS:
+        return 0.0, 1.0  # the band is the quantisation's: no colour can be told
+    white, best = _colour_fits(fm, pm, known, a0, b0)
     lr = max(0.0, 2 * effective_segments(segments, 2 * (len(f) - 1)) * (white.fun - best.fun))
     return lr, float(chi2.sf(lr, 1))
 
@@ -185,23 +202,40 @@ def _welch(residual: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray
     return f, p, max(1, 2 * len(residual) // nper - 1)  # 50 % overlap
 
 
-def _in_band(f: np.ndarray, p: np.ndarray, band_hz: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+def _in_band(
+    f: np.ndarray, p: np.ndarray, band_hz: float, floor: Floor | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """The band's bins, the known floor on them, and starting levels for a and b (the floor
+    taken off: it is not theirs to fit). With a floor, the band ends where the floor first
+    passes the flat level of the lowest bins: above, the residual is the quantisation's, whose
+    line structure the floor places only to within its width (a staircase's lines at 1–2× the
+    floor, tests/quantisation_nulls.py), and says nothing of the vibration's shape."""
     m = (f >= BAND_LOW_HZ) & (f <= 0.5 * band_hz)  # the band filter is flat to 1 % up to half its corner
     fm, pm = f[m], p[m]
-    a0 = float(np.median(pm[: max(3, len(pm) // 10)]))
-    b0 = max(float(np.median(pm[-max(3, len(pm) // 10) :])) / fm[-1] ** 2, 1e-30)
-    return fm, pm, a0, b0
+    known = np.zeros_like(fm) if floor is None else np.asarray(floor(fm), dtype=float)
+    k = max(3, len(pm) // 10)
+    a0 = max(float(np.median((pm - known)[:k])), 1e-3 * float(np.median(pm[:k])), 1e-300)
+    above = np.nonzero(known > a0)[0]
+    if len(above):
+        fm, pm, known = fm[: above[0]], pm[: above[0]], known[: above[0]]
+        k = max(3, len(pm) // 10)
+    if len(fm) < MIN_SEEN_BINS:
+        return fm, pm, known, a0, 1e-30
+    b0 = max(float(np.median((pm - known)[-k:])) / fm[-1] ** 2, 1e-30)
+    return fm, pm, known, a0, b0
 
 
-def _colour_fits(fm: np.ndarray, pm: np.ndarray, a0: float, b0: float) -> tuple[Any, Any]:
+def _colour_fits(fm: np.ndarray, pm: np.ndarray, known: np.ndarray, a0: float, b0: float) -> tuple[Any, Any]:
     """Whittle fits of the white and the coloured shape (scipy OptimizeResults)."""
-    white = minimize(_whittle, [math.log(a0), math.log(b0)], args=(fm, pm, False), method="Nelder-Mead")
+    white = minimize(
+        _whittle, [math.log(a0), math.log(b0)], args=(fm, pm, False, known), method="Nelder-Mead"
+    )
     best = None
     for tau0 in (0.003, 0.01, 0.03, 0.1, 0.3):
         r = minimize(
             _whittle,
             [math.log(a0), math.log(b0), math.log(tau0)],
-            args=(fm, pm, True),
+            args=(fm, pm, True, known),
             method="Nelder-Mead",
             options={"maxiter": 2000},
         )
@@ -212,12 +246,20 @@ def _colour_fits(fm: np.ndarray, pm: np.ndarray, a0: float, b0: float) -> tuple[
 
 
 def spectrum_report(
-    f: np.ndarray, p: np.ndarray, segments: int, J: float, band_hz: float, lb_p: float = math.nan
+    f: np.ndarray,
+    p: np.ndarray,
+    segments: int,
+    J: float,
+    band_hz: float,
+    lb_p: float = math.nan,
+    floor: Floor | None = None,
 ) -> NoiseReport:
     """The spectral tests on a Welch spectrum (f, p) of `segments` segments (a stored spectrum
     can be re-judged without its residual)."""
-    fm, pm, a0, b0 = _in_band(f, p, band_hz)
-    white, best = _colour_fits(fm, pm, a0, b0)
+    fm, pm, known, a0, b0 = _in_band(f, p, band_hz, floor)
+    if len(fm) < MIN_SEEN_BINS:  # the band is the quantisation's: nothing to test
+        return NoiseReport(lb_p, 0.0, 1.0, 0.0, math.sqrt(a0 / 2) / J if J > 0 else math.nan, f, p)
+    white, best = _colour_fits(fm, pm, known, a0, b0)
     # The colour's ratio on the effective segments (inflated ≈ 2.1× on the count: 11 of 300
     # open-loop nulls were false alarms, 6 of them colour, docs/measurements/doctor-false-alarms.md); the
     # peak's statistics keep the count: PEAK_WHITE_LR was calibrated on them.
@@ -225,7 +267,7 @@ def spectrum_report(
     tau = math.exp(best.x[2])
     # White Δv of intensity σv (eq. 12): one-sided PSD of J·Δv is 2·J²·σv².
     sigma_v = math.sqrt(math.exp(white.x[0]) / 2) / J if J > 0 else math.nan
-    fun_peak, f0, q, power = _peak(fm, pm, a0, b0)
+    fun_peak, f0, q, power = _peak(fm, pm, a0, b0, known)
     peak_lr = max(0.0, 2 * segments * (best.fun - fun_peak))
     return NoiseReport(
         lb_p,

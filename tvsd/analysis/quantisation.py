@@ -1,0 +1,163 @@
+"""The encoder's quantisation in the residual: a known spectral floor, not a fitted shape.
+
+When the recorded speed is an encoder's backward difference, ω[k] = (φ[k] − φ[k−1])·fs with φ a
+whole number of counts of q = 2π/N rad, ω lies on a grid of step s = q·fs, and its error is
+fs·(e[k] − e[k−1]) with e the angle's quantisation error. At a local rate of p counts per sample
+(speed |ω|/s) the count crossed in a sample is ⌊p⌋ or ⌈p⌉, so var(fs·Δe) = s²·{p}(1 − {p})
+({p}: the fractional part) — s²/6, the white-e value q²/12 differenced, when {p} is spread over
+[0, 1), less at a fraction of a count per sample (a shaft that moves one count in ten samples
+has s²·0.09). Its spectrum, for e white, is var·4·sin²(πf/fs)/fs; the doctor's acceleration rows
+take it through the band filter (filtfilt: |B|⁴), the central difference (fs·sin(2πf/fs))², the
+decimation's anti-alias filter (|C|⁴) and the decimation's aliases: f⁴ at low frequency.
+
+The level comes from the count step and the recorded speed only: no free parameter. The step is
+the declared `# encoder_counts_per_rev:` N when ω lies on its grid (s = 2π/N·fs), else the grid
+ω is seen to lie on (a count difference whatever the header says); a speed that is not on a grid
+(a tachometer, tvsd's own period-mean speed with its measurement noise) has no floor: its φ's
+quantisation never reaches the residual, which is built from ω.
+
+Where e is not white: at a constant speed the error is a sawtooth, its spectrum lines at the
+count rate's fractional part × fs and harmonics, aliased. The speed's own variation over a
+spectral segment (vibration, excitation) spreads them by n·δω/q Hz for harmonic n: at 8192
+counts/rev hundreds of hertz (white in the band), at 256 counts/rev tens, so there the floor is
+the lines' mean level, not their shape (docs/measurements/quantfloor.md).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+from scipy.signal import butter, filtfilt, freqz
+
+from tvsd.analysis.prep import Prepared, _antialias
+
+SEGMENT_S = 4.0  # tvsd.analysis.noise's Welch segment (noise imports this module)
+
+GRID_TOL = 1e-3  # |ω/s − round(ω/s)| below this is on the grid (the CSV's 7 digits: ≤ 5e-4 counts)
+GRID_SHARE = 0.99  # share of the samples that must be on it
+MIN_LEVELS = 3  # a grid needs at least this many distinct count levels to be read from the data
+
+Floor = Callable[[np.ndarray], np.ndarray]
+
+
+def on_grid(omega: np.ndarray, step: float) -> bool:
+    """Whether the speed is a whole number of steps in (almost) every sample."""
+    if not (math.isfinite(step) and step > 0):
+        return False
+    x = omega / step
+    return bool(np.mean(np.abs(x - np.round(x)) < GRID_TOL) >= GRID_SHARE)
+
+
+def read_step(omega: np.ndarray) -> float | None:
+    """The grid step the speed is seen to lie on, or None: the smallest gap between its distinct
+    levels (levels within 1e-5 relative merged: printing), confirmed by `on_grid`."""
+    levels = np.unique(np.abs(omega))
+    if len(levels) > len(omega) // 10:  # a continuous signal: nearly every value distinct
+        return None
+    gaps = np.diff(levels)
+    gaps = gaps[gaps > 1e-5 * max(float(levels[-1]), 1e-12)]
+    if len(gaps) + 1 < MIN_LEVELS:
+        return None
+    step = float(np.min(gaps))
+    return step if on_grid(omega, step) else None
+
+
+def speed_step(omega: np.ndarray, fs: float, counts: float | None) -> float | None:
+    """The speed's count step s = q·fs: from the declared counts per revolution when ω is on that
+    grid, else read from ω when no count is declared; None when ω is not a count difference."""
+    if counts is not None:
+        step = 2 * math.pi / counts * fs
+        return step if on_grid(omega, step) else None
+    return read_step(omega)
+
+
+HARMONICS = 64  # sawtooth harmonics placed by the speed; the rest (1/64 of e's power) spread flat
+SPEED_HZ = 5.0  # the speed that places the lines: ω low-passed here (its own quantisation noise,
+# ∝ f_c^1.5, then moves a line by < 1 count/s at 1 kHz, less than a 0.05 rad/s^1.5 vibration's wander)
+OVERSAMPLE = 16  # the lines' histogram is this much finer than the Welch resolution
+
+
+def error_psd(speed: np.ndarray, weight: np.ndarray, q: float, fs: float, segment_s: float) -> Floor:
+    """One-sided PSD of the angle's quantisation error e over the samples' weights (their mean
+    over the record, as a Welch average sees it), at full-rate frequencies in [0, fs/2].
+
+    At a count rate r = |ω|/q (counts/s) e is a sawtooth: harmonic n at n·r folded into [0, fs/2],
+    of power q²/(2π²n²) (Σ = q²/12). The record's spectrum is the lines' histogram over its samples
+    (slow changes of r: the instantaneous-frequency spectrum), seen through the Welch segment's
+    Hann window. A speed spread over many counts per sample fills it evenly: white, q²/(6·fs)."""
+    df = 1.0 / segment_s / OVERSAMPLE
+    nbins = int(fs / 2 / df) + 1
+    rate = np.abs(speed) / q
+    hist = np.zeros(nbins)
+    w = weight / max(len(weight), 1)
+    for n in range(1, HARMONICS + 1):
+        f = np.mod(n * rate, fs)
+        f = np.where(f > fs / 2, fs - f, f)
+        line = q * q / (2 * math.pi**2 * n * n)  # harmonic n of a sawtooth of height q
+        hist += np.bincount(np.minimum((f / df + 0.5).astype(int), nbins - 1), w, nbins) * line
+    rest = q * q / (2 * math.pi**2) * (math.pi**2 / 6 - sum(1.0 / k**2 for k in range(1, HARMONICS + 1)))
+    density = hist / df + float(np.sum(w)) * rest / (fs / 2)
+    m = 256  # the Hann window's spectral kernel at the histogram's resolution
+    kern = np.abs(np.fft.rfft(np.hanning(m), OVERSAMPLE * m)) ** 2
+    half = 3 * OVERSAMPLE  # the mainlobe and first sidelobes (±3 Welch bins)
+    kernel = np.concatenate([kern[1 : half + 1][::-1], kern[: half + 1]])
+    kernel /= kernel.sum()
+    smooth = np.convolve(np.pad(density, half, mode="reflect"), kernel, mode="valid")
+    grid = np.arange(nbins) * df
+
+    def psd(f: np.ndarray) -> np.ndarray:
+        return np.asarray(np.interp(f, grid, smooth))
+
+    return psd
+
+
+def _gain(prep: Prepared, f: np.ndarray) -> np.ndarray:
+    """|transfer|² from the recorded speed to the acceleration rows at full-rate frequencies f:
+    band filter and anti-alias filter both run forward and back (|·|⁴), the central difference."""
+    fs = prep.data.sample_rate_hz
+    w = 2 * np.pi * f / fs
+    _, hb = freqz(prep.b, prep.a, worN=w)
+    g = np.abs(hb) ** 4 * (fs * np.sin(w)) ** 2
+    if prep.band.decim > 1:
+        bc, ac = _antialias(prep.band.decim)
+        _, hc = freqz(bc, ac, worN=w)
+        g = g * np.abs(hc) ** 4
+    return np.asarray(g)
+
+
+def floor(prep: Prepared, keep: np.ndarray) -> Floor | None:
+    """The quantisation's one-sided PSD in the residual rows (zero outside `keep`, as the doctor
+    passes them), as a function of the rows' frequency; None when ω is not a count difference."""
+    d = prep.data
+    if d.speed is None or d.units.axis != "rotary":
+        return None
+    counts = d.meta.get("encoder_counts_per_rev")
+    fs = d.sample_rate_hz
+    step = speed_step(d.speed, fs, float(counts) if counts is not None else None)
+    if step is None:
+        return None
+    b, a = butter(2, SPEED_HZ / (fs / 2))
+    speed = filtfilt(b, a, d.speed)
+    weight = np.zeros(len(speed))  # full-rate samples of the rows kept (each row stands for decim)
+    rows_at = prep.trim + prep.band.decim * np.arange(len(keep))
+    for j in range(prep.band.decim):
+        idx = np.clip(rows_at + j - prep.band.decim // 2, 0, len(speed) - 1)
+        weight[idx] = np.where(keep, 1.0, weight[idx])
+    weight *= len(speed) / max(prep.band.decim * len(keep), 1)  # the mean over the rows, not the record
+    s_e = error_psd(speed, weight, step / fs, fs, SEGMENT_S)
+    rows_rate = fs / prep.band.decim
+
+    def psd(f: np.ndarray) -> np.ndarray:
+        f = np.asarray(f, dtype=float)
+        total = np.zeros_like(f)
+        for k in range(prep.band.decim + 1):  # the aliases k·fr ± f folded into [0, fs/2]
+            for fa in (k * rows_rate - f, k * rows_rate + f) if k else (f,):
+                ok = (fa >= 0) & (fa <= fs / 2)
+                fa_ok = np.where(ok, fa, 0.0)
+                s = s_e(fa_ok) * (fs * 2 * np.sin(np.pi * fa_ok / fs)) ** 2 * _gain(prep, fa_ok)
+                total += np.where(ok, s, 0.0)
+        return total
+
+    return psd
