@@ -83,7 +83,7 @@ class Api:
         return self._status[1]
 
     async def api_speed(self, rps: float) -> dict[str, Any]:
-        await self._refuse_in_fault()
+        # The parameter first, the state second: a bad request gets the same answer in every state.
         max_rps = self.d.cfg.daemon.max_rps
         if not math.isfinite(rps) or abs(rps) > max_rps:
             raise RpcError(
@@ -91,6 +91,7 @@ class Api:
                 f"rps {rps:g} is outside ±{max_rps:g} rev/s (daemon.max_rps; the drive holds 25 at "
                 "5.9 V of 12)",
             )
+        await self._refuse_in_fault()
         self.d.set_speed(rps)
         return {"rps_setpoint": rps}
 
@@ -181,11 +182,11 @@ class Api:
         return {"recorded": str(path) if path else None}
 
     async def api_record_window(self, seconds: float = 1.0) -> dict[str, Any]:
-        if self.d.recording is None:
-            raise RpcError(STATE_ERROR, "not recording: start a recording first (tvsctl record start)")
         kept = math.floor(self.d.runner.ring_size / self.d.cfg.control.rate_hz)  # 6 s at 10 kHz
         if not 0 < seconds <= kept:
             raise RpcError(INVALID_PARAMS, f"seconds {seconds:g}: the control thread keeps 0 .. {kept:g} s")
+        if self.d.recording is None:
+            raise RpcError(STATE_ERROR, "not recording: start a recording first (tvsctl record start)")
         ticks = self.d.record_window(seconds, "request")
         return {"ticks": ticks, "recording": str(self.d.recording.path)}
 
@@ -223,8 +224,9 @@ class Api:
         """A bounded excitation on top of spinning/scanning, recorded (tvsd/daemon/identify.py);
         amplitudes and limits from the config's identify: section. Returns at once: poll
         identify_status."""
+        settings = settings_for(self.d.cfg.identify, seconds=seconds, kinds=kinds, seed=seed)
         await self._refuse_in_fault()
-        run = IdentifyRun(self.d, settings_for(self.d.cfg.identify, seconds=seconds, kinds=kinds, seed=seed))
+        run = IdentifyRun(self.d, settings)
         self.d.start_identify(run)
         return run.to_json()
 

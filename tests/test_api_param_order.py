@@ -1,0 +1,44 @@
+"""A bad parameter gets -32602 in every state (found by scripts/api_fuzz.py on the installed wheel):
+`speed 1e6` to a faulted daemon answered "clear the fault first" (-32002), and after the clear the
+same request was -32602; `record_window -1` said "start a recording"; `identify` with bad kinds
+said the same as the state. A client cannot fix a request it is told is fine. The daemon is a
+stand-in with the state and what each method touches: what is tested is the order of the checks."""
+
+from __future__ import annotations
+
+import asyncio
+from types import SimpleNamespace
+
+import pytest
+
+from tvsd.config import load_config
+from tvsd.daemon.api import Api
+from tvsd.daemon.rpc import INVALID_PARAMS, RpcError
+from tvsd.daemon.state import DaemonState
+
+
+def faulted_daemon() -> SimpleNamespace:
+    cfg = load_config(params="default")
+    d = SimpleNamespace(state=DaemonState.FAULT, cfg=cfg, recording=None, speeds=[])
+    d.runner = SimpleNamespace(ring_size=60000)
+    d.set_speed = d.speeds.append
+    return d
+
+
+@pytest.mark.parametrize(
+    ("method", "kwargs"),
+    [
+        ("api_speed", {"rps": 1e6}),
+        ("api_speed", {"rps": float("nan")}),
+        ("api_record_window", {"seconds": -1.0}),
+        ("api_record_window", {"seconds": 1e300}),
+        ("api_identify", {"kinds": ["nope"]}),
+        ("api_identify", {"seconds": -5.0}),
+    ],
+)
+def test_a_bad_parameter_is_invalid_params_even_in_a_fault(method: str, kwargs: dict) -> None:
+    d = faulted_daemon()
+    with pytest.raises(RpcError) as err:
+        asyncio.run(getattr(Api(d), method)(**kwargs))  # type: ignore[arg-type]
+    assert err.value.code == INVALID_PARAMS, err.value.message
+    assert d.speeds == []
