@@ -3,6 +3,9 @@ traceback or "internal error" (exit 70), or a silent choice, before; now one lin
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -82,3 +85,19 @@ def test_a_report_folder_that_cannot_be_made_is_refused_before_the_analysis(
     err = capsys.readouterr().err
     assert err.startswith(f"tvsctl: --report {out}:") and err.count("\n") == 1, err
     assert not (tmp_path / "missing").exists()
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="drops root to an unprivileged uid")
+def test_realtime_refused_says_what_is_missing() -> None:
+    """`tvsd --realtime` as an unprivileged user said only "event loop SCHED_FIFO refused:
+    Operation not permitted": not what to grant. The refusal, as nobody (uid 65534)."""
+    code = "import os; from tvsd.daemon.main import _io_side_realtime; os.setuid(65534); _io_side_realtime()"
+    proc = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 0, proc.stderr
+    line = proc.stderr.strip()
+    assert "refused" in line and "CAP_SYS_NICE" in line and "rtprio" in line and "\n" not in line, line
