@@ -13,7 +13,7 @@ import pytest
 
 from tvsd.config import load_config
 from tvsd.daemon.api import Api
-from tvsd.daemon.rpc import INVALID_PARAMS, RpcError
+from tvsd.daemon.rpc import INVALID_PARAMS, STATE_ERROR, RpcError
 from tvsd.daemon.state import DaemonState
 
 
@@ -42,3 +42,22 @@ def test_a_bad_parameter_is_invalid_params_even_in_a_fault(method: str, kwargs: 
         asyncio.run(getattr(Api(d), method)(**kwargs))  # type: ignore[arg-type]
     assert err.value.code == INVALID_PARAMS, err.value.message
     assert d.speeds == []
+
+
+def test_a_moving_sensor_at_calibration_is_exit_1_not_a_device_fault() -> None:
+    """`tvsctl calibrate-imu` on the installed wheel, right after the motor stopped: "pl IMU is
+    moving" came back as a device error (-32001), which tvsctl turns into exit 3 ("a device is
+    unreachable"); the README's exit table says 1 (the command ran, the result is a refusal)."""
+    from tvsd.errors import EXIT_FAILURE
+    from tvsd.hw.imu_calibration import CalibrationRefused
+    from tvsd.rpc.client import remote_error
+
+    async def calibrate(seconds: float) -> dict:
+        raise CalibrationRefused("pl IMU is moving: gyro spread [0.887, 0.071, 0.072] deg/s")
+
+    d = faulted_daemon()
+    d.state, d.measured_rps, d.imu = DaemonState.IDLE, 0.0, SimpleNamespace(calibrate=calibrate)
+    with pytest.raises(RpcError) as err:
+        asyncio.run(Api(d).api_imu_calibrate(2.0))  # type: ignore[arg-type]
+    assert err.value.code == STATE_ERROR and "is moving" in err.value.message
+    assert remote_error(err.value.code, err.value.message).exit_status == EXIT_FAILURE

@@ -24,6 +24,7 @@ from tvsd.daemon.rpc import DEVICE_ERROR, INVALID_PARAMS, STATE_ERROR, Encoded, 
 from tvsd.daemon.state import DaemonState
 from tvsd.errors import TvsdError, UsageError
 from tvsd.hw.can.frames import Ack, Command, CommandCode, Reason
+from tvsd.hw.imu_calibration import CalibrationRefused
 from tvsd.scan import geometry
 
 if TYPE_CHECKING:
@@ -163,6 +164,8 @@ class Api:
             )
         try:
             result: dict[str, Any] = await self.d.imu.calibrate(seconds)
+        except CalibrationRefused as exc:  # the sensor moved: a result (exit 1), not a broken device
+            raise RpcError(STATE_ERROR, str(exc)) from None
         except TvsdError as exc:
             raise _rpc_error(exc) from None
         self.d.mark("imu_calibrated", file=str(result.get("file")))
