@@ -13,8 +13,10 @@ sample, it acts as a delay of L/R (left out, a noise-free recording shows it as 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -152,24 +154,31 @@ def load(path: Path, cfg: Config) -> Dataset:
     )
 
 
+def _mat_numbers(path: Path, data: dict[str, Any], name: str) -> np.ndarray:
+    """A .mat variable as a flat float array, or one line saying what it is instead."""
+    arr = np.asarray(data[name])
+    if arr.dtype.kind not in "biuf":  # text, cells, structs, complex: not a measured signal
+        raise DataFileError(f"{path}: variable {name} holds {arr.dtype} values, not real numbers")
+    return arr.astype(float).ravel()
+
+
 def load_emps(path: Path) -> Dataset:
     """EMPS benchmark file: qm (m), vir (V, force = gtau·vir), t (s); closed loop, 1 kHz."""
     from scipy.io import loadmat
+    from scipy.io.matlab import MatReadError  # an empty or truncated file
 
     try:
         data = loadmat(str(path))
     except FileNotFoundError:
         raise DataFileError(f"{path}: no such file") from None
-    except (ValueError, OSError, TypeError) as exc:
+    except (ValueError, OSError, TypeError, MatReadError) as exc:
         raise DataFileError(f"{path}: not a readable MATLAB .mat file ({exc})") from exc
     missing = [k for k in ("t", "qm", "vir", "gtau") if k not in data]
     if missing:
         raise DataFileError(
             f"{path}: row 1: missing variable(s) {', '.join(missing)}; an EMPS file has t, qm, vir, gtau"
         )
-    t = np.asarray(data["t"], dtype=float).ravel()
-    qm = np.asarray(data["qm"], dtype=float).ravel()
-    vir = np.asarray(data["vir"], dtype=float).ravel()
+    t, qm, vir, gtau_v = (_mat_numbers(path, data, k) for k in ("t", "qm", "vir", "gtau"))
     if not (len(t) == len(qm) == len(vir)) or len(t) < 100:
         raise DataFileError(f"{path}: t, qm, vir must have the same length ≥ 100")
     for name, arr in (("t", t), ("qm", qm), ("vir", vir)):
@@ -180,7 +189,9 @@ def load_emps(path: Path) -> Dataset:
     if np.any(dt <= 0):
         k = int(np.nonzero(dt <= 0)[0][0]) + 1
         raise DataFileError(f"{path}: row {k + 1}: t does not increase")
-    gtau = float(np.asarray(data["gtau"]).ravel()[0])
+    if len(gtau_v) != 1 or not (math.isfinite(gtau_v[0]) and gtau_v[0] > 0):
+        raise DataFileError(f"{path}: gtau must be one positive number (N per V), got {gtau_v[:3]}")
+    gtau = float(gtau_v[0])
     return Dataset(
         name=path.name,
         t=t - t[0],

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -11,7 +12,7 @@ from typing import Any
 from tvsd.cli import argtypes
 from tvsd.cli.output import fmt, print_json, print_table
 from tvsd.config import load_config
-from tvsd.errors import EXIT_OK
+from tvsd.errors import EXIT_OK, UsageError
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -61,6 +62,8 @@ def _run(args: argparse.Namespace) -> int:
         if show:
             print(f"[{time.monotonic() - start:5.1f} s] {message}", file=sys.stderr, flush=True)
 
+    if args.report:
+        _check_report_dir(args.report)  # before the analysis's seconds, not after them
     data = load(args.file, cfg)
     heldout = load(args.heldout, cfg) if args.heldout else None
     band = EMPS_BAND if data.units.axis == "linear" else Band()
@@ -68,7 +71,10 @@ def _run(args: argparse.Namespace) -> int:
     summary = as_json(dg)
     if args.report:
         progress("writing the report")
-        page = R.write(dg, summary, args.report)
+        try:
+            page = R.write(dg, summary, args.report)
+        except OSError as exc:  # a full disk, a folder made read-only meanwhile
+            raise UsageError(f"--report {args.report}: cannot write the report: {exc.strerror}") from exc
         summary["report"] = str(page)
     if args.json:
         print_json(summary)
@@ -108,6 +114,18 @@ def _run(args: argparse.Namespace) -> int:
     if args.report:
         print(f"report: {summary['report']}")
     return EXIT_OK
+
+
+def _check_report_dir(out: Path) -> None:
+    """--report DIR: an existing folder, or a new one in an existing folder, that this user may
+    write (as tvsd's --data-dir: no missing parents made on the way)."""
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--report {out}: exists and is not a folder; give a folder for report.md")
+    target = out if out.exists() else out.parent
+    if not target.is_dir():
+        raise UsageError(f"--report {out}: folder {target} does not exist; create it first")
+    if not os.access(target, os.W_OK | os.X_OK):
+        raise UsageError(f"--report {out}: {target} is not writable by this user; give another folder")
 
 
 def cause_line(c: dict[str, Any]) -> str:

@@ -24,6 +24,7 @@ from tvsd.daemon.rpc import DEVICE_ERROR, INVALID_PARAMS, STATE_ERROR, Encoded, 
 from tvsd.daemon.state import DaemonState
 from tvsd.errors import TvsdError, UsageError
 from tvsd.hw.can.frames import Ack, Command, CommandCode, Reason
+from tvsd.hw.imu_calibration import CalibrationRefused
 from tvsd.scan import geometry
 
 if TYPE_CHECKING:
@@ -83,7 +84,7 @@ class Api:
         return self._status[1]
 
     async def api_speed(self, rps: float) -> dict[str, Any]:
-        await self._refuse_in_fault()
+        # The parameter first, the state second: a bad request gets the same answer in every state.
         max_rps = self.d.cfg.daemon.max_rps
         if not math.isfinite(rps) or abs(rps) > max_rps:
             raise RpcError(
@@ -91,6 +92,7 @@ class Api:
                 f"rps {rps:g} is outside ±{max_rps:g} rev/s (daemon.max_rps; the drive holds 25 at "
                 "5.9 V of 12)",
             )
+        await self._refuse_in_fault()
         self.d.set_speed(rps)
         return {"rps_setpoint": rps}
 
@@ -162,6 +164,8 @@ class Api:
             )
         try:
             result: dict[str, Any] = await self.d.imu.calibrate(seconds)
+        except CalibrationRefused as exc:  # the sensor moved: a result (exit 1), not a broken device
+            raise RpcError(STATE_ERROR, str(exc)) from None
         except TvsdError as exc:
             raise _rpc_error(exc) from None
         self.d.mark("imu_calibrated", file=str(result.get("file")))
@@ -181,11 +185,11 @@ class Api:
         return {"recorded": str(path) if path else None}
 
     async def api_record_window(self, seconds: float = 1.0) -> dict[str, Any]:
-        if self.d.recording is None:
-            raise RpcError(STATE_ERROR, "not recording: start a recording first (tvsctl record start)")
         kept = math.floor(self.d.runner.ring_size / self.d.cfg.control.rate_hz)  # 6 s at 10 kHz
         if not 0 < seconds <= kept:
             raise RpcError(INVALID_PARAMS, f"seconds {seconds:g}: the control thread keeps 0 .. {kept:g} s")
+        if self.d.recording is None:
+            raise RpcError(STATE_ERROR, "not recording: start a recording first (tvsctl record start)")
         ticks = self.d.record_window(seconds, "request")
         return {"ticks": ticks, "recording": str(self.d.recording.path)}
 
@@ -223,8 +227,9 @@ class Api:
         """A bounded excitation on top of spinning/scanning, recorded (tvsd/daemon/identify.py);
         amplitudes and limits from the config's identify: section. Returns at once: poll
         identify_status."""
+        settings = settings_for(self.d.cfg.identify, seconds=seconds, kinds=kinds, seed=seed)
         await self._refuse_in_fault()
-        run = IdentifyRun(self.d, settings_for(self.d.cfg.identify, seconds=seconds, kinds=kinds, seed=seed))
+        run = IdentifyRun(self.d, settings)
         self.d.start_identify(run)
         return run.to_json()
 

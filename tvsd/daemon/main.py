@@ -120,6 +120,12 @@ def _make_dir(folder: Path, option: str) -> str | None:
     return None
 
 
+# What an unprivileged user lacks for --realtime, and the two ways to grant it.
+RT_NEEDS = (
+    "needs root, or CAP_SYS_NICE and CAP_IPC_LOCK (systemd: AmbientCapabilities=), or the limits "
+    "rtprio ≥ 80 and memlock unlimited for this user (/etc/security/limits.d/, `ulimit -r -l`); "
+    "tvsd runs on without them, and under load the control loop misses ticks"
+)
 IO_PRIORITY = 40  # SCHED_FIFO of the event loop and the threads it starts; the control thread: 80
 # The GIL's hand-over interval. The MCU link's I/O thread (the heartbeat, the state frames) waits
 # up to this for the GIL whenever another thread runs Python; the default 5 ms is a tenth of the
@@ -138,7 +144,10 @@ def _io_side_realtime() -> None:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(IO_PRIORITY))
         print(f"tvsd: event loop, I/O threads SCHED_FIFO granted (priority {IO_PRIORITY})", file=sys.stderr)
     except OSError as exc:
-        print(f"tvsd: event loop SCHED_FIFO refused: {exc.strerror or exc}", file=sys.stderr)
+        print(
+            f"tvsd: event loop SCHED_FIFO refused: {exc.strerror or exc} ({RT_NEEDS})",
+            file=sys.stderr,
+        )
 
 
 async def _serve(args: argparse.Namespace, cfg: Config, config_text: str) -> int:

@@ -105,10 +105,10 @@ def read(path: Path) -> Recording:
         return DataFileError(f"{path}: row {row}: {problem}")
 
     if not lines or lines[0].replace(" ", "") != f"#tvs-recording:{FORMAT_VERSION}":
-        seen = lines[0][:60] if lines else "an empty file"
+        seen = repr(lines[0][:60]) if lines else "an empty file"
         raise fail(
             1,
-            f"expected '# tvs-recording: {FORMAT_VERSION}' as the first line, got {seen!r}"
+            f"expected '# tvs-recording: {FORMAT_VERSION}' as the first line, got {seen}"
             " (is this a tvs recording? see docs/architecture.md, 'Recording CSV')",
         )
     meta: dict[str, str] = {}
@@ -118,8 +118,11 @@ def read(path: Path) -> Recording:
         key, colon, value = lines[row][1:].partition(":")
         if not colon:
             raise fail(row + 1, f"metadata line {lines[row]!r} is not '# key: value'")
-        meta[key.strip()] = value.strip()
-        meta_row[key.strip()] = row + 1
+        key, value = key.strip(), value.strip()
+        if key in meta and meta[key] != value:  # `# u_unit: V` then `# u_unit: A`: which one?
+            raise fail(row + 1, f"'{key}' is given again (first at row {meta_row[key]}): keep one line")
+        meta[key] = value
+        meta_row[key] = row + 1
         row += 1
     if "sample_rate_hz" not in meta:
         raise fail(2, "missing '# sample_rate_hz: <Hz>' metadata line")

@@ -67,7 +67,7 @@ class Dispatcher:
             return self.error(err)
         if isinstance(msg, list):
             if not msg:
-                return self.error(RpcError(INVALID_REQUEST, "empty batch: send [] of requests"))
+                return self.error(RpcError(INVALID_REQUEST, "empty batch []: send at least one request"))
             if len(msg) > self.limits.max_batch:
                 n = self.limits.max_batch
                 return self.error(
