@@ -364,16 +364,20 @@ def _instrumented_check(
     matrix's closed-loop clips and delays stay far above the gate: 293 and 83–1406)."""
     if not instrument.excited(data):
         return None
-    memo: dict[str, C.Outcome] = {}
+    memo: dict[tuple[bool, bool], C.Outcome] = {}
 
     def holds(cause: str) -> bool:
-        if "out" not in memo:
-            iv, _ = instrument.instrumented(prep, data.offset_term, rotary)
+        # Per cause (instrument.IDENTIFIED_FOR, EXPECTED_FOR; docs/measurements/closedsat.md): the
+        # clip's block as E[f(u) | instruments], θ_IV along identified directions only.
+        key = (cause in instrument.IDENTIFIED_FOR, cause in instrument.EXPECTED_FOR)
+        if key not in memo:
+            ident, expect = key
+            iv, _ = instrument.instrumented(prep, data.offset_term, rotary, expected=expect or None)
             iv = absorber.absorb(iv)
             iv.back_emf = measured.back_emf
-            iv.y = instrument.structural_left_side(iv, measured)
-            memo["out"] = C.test_all(iv, seed=seed)
-        out = memo["out"]
+            iv.y = instrument.structural_left_side(iv, measured, identified_only=ident or None)
+            memo[key] = C.test_all(iv, seed=seed)
+        out = memo[key]
         return any(t.cause == cause and t.z > out.threshold for t in out.tested)
 
     return holds

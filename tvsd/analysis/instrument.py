@@ -38,7 +38,7 @@ lifts the first
 stage's share of the command's band-limited variance (0.87 → 0.96 on a 30 s case); what is left —
 the law's answer to the noise — is low-pass and, through the scanned nonlinear blocks of û, still
 fits. A file without a moving reference or a u_exc column instruments nothing: then the command-side
-causes are not testable (doctor.py drops them). """
+causes are not testable (doctor.py drops them)."""
 
 from __future__ import annotations
 
@@ -181,7 +181,12 @@ def _r2(x: np.ndarray, fit: np.ndarray) -> float:
 
 
 def instrumented(
-    prep: Prepared, offset: bool, rotary: bool, use_exc: bool = True, measured: D.Design | None = None
+    prep: Prepared,
+    offset: bool,
+    rotary: bool,
+    use_exc: bool = True,
+    measured: D.Design | None = None,
+    expected: bool | None = None,
 ) -> tuple[D.Design, FirstStage]:
     """The design with every command and speed regressor built from the reference's prediction
     (the acceleration, the angle and time as measured).
@@ -191,13 +196,14 @@ def instrumented(
     y − X·θ_IV — the equation's own error, which the instruments do not move. Without it the
     second stage's residual also holds (X − X̂)·θ, the law's answer to the noise (a low-pass,
     correlated with the noise), which the bootstrap's i.i.d. whitened errors do not describe and
-    the scanned command blocks (built from û) fit."""
+    the scanned command blocks (built from û) fit. `expected`: the maps' blocks as
+    E[f(u) | instruments] (expected_maps; None: EXPECTED_MAPS)."""
     fs = first_stage(prep, use_exc)
     data = dataclasses.replace(prep.data, u=fs.u_hat)
     prep_iv = dataclasses.replace(prep, data=data, speed=fs.speed_hat)
     t0 = float(prep.data.t[steady_start(prep.data)])
     design = D.build(prep_iv, offset, rotary, fit_mask=prep.t_rows >= t0)
-    if EXPECTED_MAPS:
+    if EXPECTED_MAPS if expected is None else expected:
         expected_maps(design, prep, fs)
     if measured is not None:
         design.y = structural_left_side(design, measured)
@@ -211,12 +217,17 @@ WEAK_F = 10.0  # a direction of the instrumented columns is identified from this
 # at 3x), net 0 (docs/measurements/cldz.md). Switched on by `matrix_closed --variants ls2`.
 IDENTIFIED_ONLY = False  # structural_left_side: 2SLS only along identified directions
 EXPECTED_MAPS = False  # the dead zone's and clip's instrumented blocks as E[f(u) | instruments]
+# Per cause, the confirmation's design (doctor._instrumented_check): the clip's block as
+# E[f(u) | instruments] (its tail, which f(û) misses) with θ_IV along identified directions only;
+# the dead zone keeps main's design (both cost one-direction zones at 30x, cldz.md). closedsat.md.
+IDENTIFIED_FOR: tuple[str, ...] = ("saturation",)
+EXPECTED_FOR: tuple[str, ...] = ("saturation",)
 
 
-def structural_left_side(iv: D.Design, measured: D.Design) -> np.ndarray:
+def structural_left_side(iv: D.Design, measured: D.Design, identified_only: bool | None = None) -> np.ndarray:
     """y − (X − X̂)·θ_IV: the left side whose regression on X̂ leaves the structural residual
     y − X·θ_IV (unchanged y where the two designs' columns differ). θ_IV by least squares on X̂
-    (main's rule) unless IDENTIFIED_ONLY, which does the following.
+    (main's rule) unless `identified_only` (None: IDENTIFIED_ONLY), which does the following.
 
     θ_IV is fitted only along the directions of X̂ the instruments identify: a column that is
     ~0 on the rows (a Stribeck term at the scanning speed, e^−(ω/ωs)² ≈ 1e−50) or a
@@ -233,7 +244,7 @@ def structural_left_side(iv: D.Design, measured: D.Design) -> np.ndarray:
     if measured.X.shape != iv.X.shape:
         return iv.y
     m = iv.rows_mask
-    if not IDENTIFIED_ONLY:  # least squares on X̂ along every direction (main's rule)
+    if not (IDENTIFIED_ONLY if identified_only is None else identified_only):  # main's rule: lstsq on X̂
         theta, *_ = np.linalg.lstsq(iv.X[m], iv.y[m], rcond=None)
         return iv.y - (measured.X - iv.X) @ theta
     A, B, y = iv.X[m], measured.X[m], iv.y[m]
