@@ -3,9 +3,8 @@
     .venv/bin/python scripts/closedsat_summary.py [docs/measurements/closedsat]
 
 Reads the rows of `python -m tvsd.analysis.matrix_closed` in that folder: sat71.jsonl (seed 71's
-24 clips, variants ls = the default, lsm = the rule before), drift71.jsonl (seed 71's 24 drifts,
-ls and lsd = the drift confirmed along identified directions too), nulls76*.jsonl (fresh nulls,
-ls; lsm/lsd where re-judged). Units: tvsd.analysis.confusion.units (a clip's and a dead zone's
+24 clips; ls = the default, lsm = the rule before on the first 14, lss on the last 10),
+sat71-lss.jsonl (lss on the refused ones of the first 14), nulls76*.jsonl (fresh nulls, ls). Units: tvsd.analysis.confusion.units (a clip's and a dead zone's
 `exposed_units`, a drift's `visible`, measured on the recording).
 """
 
@@ -76,7 +75,22 @@ def nulls(rs: list[dict[str, Any]]) -> None:
             print(f"  re-judged with {v}: {len(both)}, answers differing from ls: {diff}")
 
 
+def saturation() -> list[dict[str, Any]]:
+    """sat71's rows with `lss` from sat71-lss merged in, and `before`: main's rule as stored by
+    branch cldz on the same recordings (cldz/seed71.jsonl's `ls`)."""
+    rs = {r["seed"]: r for r in rows("sat71.jsonl")}
+    for r in rows("sat71-lss.jsonl"):
+        rs[r["seed"]].update({k: v for k, v in r.items() if k.startswith("lss")})
+    before = {r["seed"]: r for r in rows("../cldz/seed71.jsonl")}
+    for seed, r in rs.items():
+        r["before"], r["before_why"] = before[seed]["ls"], before[seed]["ls_why"]
+    return list(rs.values())
+
+
+def unique(rs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    return list({r["seed"]: r for r in rs}.values())
+
+
 if __name__ == "__main__":
-    per_size(rows("sat71*.jsonl"), "saturation", ("ls", "lsm"))
-    per_size(rows("drift71*.jsonl"), "drift", ("ls", "lsd"))
-    nulls(rows("nulls76*.jsonl"))
+    per_size(saturation(), "saturation", ("ls", "before", "lsm", "lss"))
+    nulls(unique(rows("nulls76*.jsonl")))

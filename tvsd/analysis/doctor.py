@@ -364,15 +364,18 @@ def _instrumented_check(
     matrix's closed-loop clips and delays stay far above the gate: 293 and 83–1406)."""
     if not instrument.excited(data):
         return None
-    memo: dict[tuple[bool, bool], C.Outcome] = {}
+    memo: dict[tuple[bool, bool, bool], C.Outcome] = {}
 
     def holds(cause: str) -> bool:
         # Per cause (instrument.IDENTIFIED_FOR, EXPECTED_FOR; docs/measurements/closedsat.md): the
         # clip's block as E[f(u) | instruments], θ_IV along identified directions only.
-        key = (cause in instrument.IDENTIFIED_FOR, cause in instrument.EXPECTED_FOR)
+        fors = (instrument.IDENTIFIED_FOR, instrument.EXPECTED_FOR, instrument.SPIN_ONLY_FOR)
+        key = (cause in fors[0], cause in fors[1], cause in fors[2])
         if key not in memo:
-            ident, expect = key
-            iv, _ = instrument.instrumented(prep, data.offset_term, rotary, expected=expect or None)
+            ident, expect, spin = key
+            iv, _ = instrument.instrumented(
+                prep, data.offset_term, rotary, expected=expect or None, spin_only=spin
+            )
             iv = absorber.absorb(iv)
             iv.back_emf = measured.back_emf
             iv.y = instrument.structural_left_side(iv, measured, identified_only=ident or None)

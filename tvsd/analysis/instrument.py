@@ -99,11 +99,17 @@ class FirstStage:
     bounds: tuple[float, float] = (0.0, 0.0)  # the recorded command's range (the law's rails)
 
 
-def steady_start(data: Dataset) -> int:
+def steady_start(data: Dataset, spin_only: bool = False) -> int:
     """The first sample after the spin-up: |ω_ref| has reached SPUN_SHARE of its level, and the
     tracking error (mean |ω_ref − ω| over SETTLE_S) is back under CATCH_UP × its median and stays
     there up to the middle of the file. Before it the drive may sit at its limit while the shaft
-    catches up: nothing a linear response to the reference describes."""
+    catches up: nothing a linear response to the reference describes.
+
+    `spin_only`: the first time the error is back under that bar after the spin-up, whatever
+    follows. A drive held at its rail on the identify steps makes a large error on every step,
+    which moved the start to the middle of the file (a clip near the rail: 15.4 s of 30) and
+    left half the clipped samples out of the clip's confirmation; its design models the rail
+    (E[f(u)] of u clipped to the recorded range), so it need not leave the steps out."""
     ref = bank(data)
     level = float(np.median(np.abs(ref[len(ref) // 5 :])))
     spun = np.flatnonzero(np.abs(ref) >= SPUN_SHARE * level)
@@ -111,12 +117,16 @@ def steady_start(data: Dataset) -> int:
     win = max(1, round(SETTLE_S * data.sample_rate_hz))
     speed = data.speed if data.speed is not None else np.gradient(data.position, data.t)
     err = np.convolve(np.abs(ref - speed), np.ones(win) / win, mode="same")
-    late = np.flatnonzero(err[: len(err) // 2] > CATCH_UP * float(np.median(err)))
+    bar = CATCH_UP * float(np.median(err))
+    if spin_only:
+        caught = np.flatnonzero(err[first:] <= bar)
+        return min(len(ref) - 1, first + win + (int(caught[0]) if len(caught) else 0))
+    late = np.flatnonzero(err[: len(err) // 2] > bar)
     after = int(late[-1]) + win if len(late) else 0
     return min(len(ref) - 1, max(first + win, after))
 
 
-def first_stage(prep: Prepared, use_exc: bool = True) -> FirstStage:
+def first_stage(prep: Prepared, use_exc: bool = True, spin_only: bool = False) -> FirstStage:
     """û and ω̂: the reference through the closed loop's own linear response, estimated over the
     file (Wiener filter H = S_rv / S_rr, Welch-averaged; any function of the reference, past or
     future, is a valid instrument). Constant lags would leave part of the loop's response to the
@@ -130,7 +140,7 @@ def first_stage(prep: Prepared, use_exc: bool = True) -> FirstStage:
     ref = bank(data)
     u_f = prep.lowpass(data.u)
     rate = data.sample_rate_hz
-    s0 = steady_start(data)
+    s0 = steady_start(data, spin_only)
     edge = slice(max(prep.trim, s0), len(u_f) - prep.trim)
     u_lin = _wiener(ref, data.u, rate, s0)
     w_lin = _wiener(ref, prep.speed, rate, s0)
@@ -187,6 +197,7 @@ def instrumented(
     use_exc: bool = True,
     measured: D.Design | None = None,
     expected: bool | None = None,
+    spin_only: bool = False,
 ) -> tuple[D.Design, FirstStage]:
     """The design with every command and speed regressor built from the reference's prediction
     (the acceleration, the angle and time as measured).
@@ -197,11 +208,12 @@ def instrumented(
     second stage's residual also holds (X − X̂)·θ, the law's answer to the noise (a low-pass,
     correlated with the noise), which the bootstrap's i.i.d. whitened errors do not describe and
     the scanned command blocks (built from û) fit. `expected`: the maps' blocks as
-    E[f(u) | instruments] (expected_maps; None: EXPECTED_MAPS)."""
-    fs = first_stage(prep, use_exc)
+    E[f(u) | instruments] (expected_maps; None: EXPECTED_MAPS); `spin_only`: rows from the
+    spin-up's end (steady_start)."""
+    fs = first_stage(prep, use_exc, spin_only)
     data = dataclasses.replace(prep.data, u=fs.u_hat)
     prep_iv = dataclasses.replace(prep, data=data, speed=fs.speed_hat)
-    t0 = float(prep.data.t[steady_start(prep.data)])
+    t0 = float(prep.data.t[steady_start(prep.data, spin_only)])
     design = D.build(prep_iv, offset, rotary, fit_mask=prep.t_rows >= t0)
     if EXPECTED_MAPS if expected is None else expected:
         expected_maps(design, prep, fs)
@@ -222,6 +234,7 @@ EXPECTED_MAPS = False  # the dead zone's and clip's instrumented blocks as E[f(u
 # the dead zone keeps main's design (both cost one-direction zones at 30x, cldz.md). closedsat.md.
 IDENTIFIED_FOR: tuple[str, ...] = ("saturation",)
 EXPECTED_FOR: tuple[str, ...] = ("saturation",)
+SPIN_ONLY_FOR: tuple[str, ...] = ()  # rows from the spin-up's end (steady_start's spin_only)
 
 
 def structural_left_side(iv: D.Design, measured: D.Design, identified_only: bool | None = None) -> np.ndarray:

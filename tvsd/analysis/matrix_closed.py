@@ -14,7 +14,8 @@ branch: every fold in the out-of-sample check, calibrate.heldout_gain; the line 
 command's lines), `ls1` (the folds' rule on, the lines still the command's), `ls2` (the
 instrumented confirmation with instrument.IDENTIFIED_ONLY and EXPECTED_MAPS: branch cldz), `lsm`
 (the clip confirmed on main's instrumented design, as before branch closedsat), `lsd` (the drift
-confirmed along the identified directions too).
+confirmed along the identified directions too), `lss` (the clip's confirmation on rows from the
+spin-up's end: instrument.steady_start's spin_only).
 
     python -m tvsd.analysis.matrix_closed OUT.jsonl [--reps 15] [--nulls 30] [--sizes 3,10]
         [--seed 0] [--worker 0 --workers 1] [--variants ls,iv] [--reversal]
@@ -51,7 +52,7 @@ from tvsd.analysis import matrix as M
 from tvsd.causes import Effect, parse_effect
 from tvsd.config import Config, load_config
 
-VARIANTS = ("ls", "lsm", "lsd", "ls0", "ls1", "ls2", "iv", "iv_ref")
+VARIANTS = ("ls", "lsm", "lsd", "lss", "ls0", "ls1", "ls2", "iv", "iv_ref")
 
 
 def plan(n_null: int, reps: int, sizes: tuple[float, ...], seed: int) -> list[M.Case]:
@@ -138,17 +139,19 @@ def analyse(path: Path, cfg: Config, variant: str) -> tuple[str, float, dict[str
         calibrate.SKIP_UNDETERMINED_FOLDS = variant != "ls0"
         calibrate.LINES_OF_REFERENCE = variant not in ("ls0", "ls1")
         instrument.IDENTIFIED_ONLY = instrument.EXPECTED_MAPS = variant == "ls2"
-        default_for = (instrument.IDENTIFIED_FOR, instrument.EXPECTED_FOR)
+        default_for = (instrument.IDENTIFIED_FOR, instrument.EXPECTED_FOR, instrument.SPIN_ONLY_FOR)
         if variant == "lsm":
-            instrument.IDENTIFIED_FOR = instrument.EXPECTED_FOR = ()
+            instrument.IDENTIFIED_FOR = instrument.EXPECTED_FOR = instrument.SPIN_ONLY_FOR = ()
         elif variant == "lsd":
             instrument.IDENTIFIED_FOR = (*instrument.IDENTIFIED_FOR, "drift")
+        elif variant == "lss":
+            instrument.SPIN_ONLY_FOR = ("saturation",)
         try:
-            dg = diagnose(data, cfg.plant.v0, iv=variant not in ("ls", "lsm", "lsd", "ls0", "ls1", "ls2"))
+            dg = diagnose(data, cfg.plant.v0, iv=variant.startswith("iv"))
         finally:  # the defaults again, whatever the variant did
             calibrate.SKIP_UNDETERMINED_FOLDS = calibrate.LINES_OF_REFERENCE = True
             instrument.IDENTIFIED_ONLY = instrument.EXPECTED_MAPS = False
-            instrument.IDENTIFIED_FOR, instrument.EXPECTED_FOR = default_for
+            instrument.IDENTIFIED_FOR, instrument.EXPECTED_FOR, instrument.SPIN_ONLY_FOR = default_for
         found = dg.cause
         why = {
             "z": {s.cause: round(float(s.z), 3) for s in dg.ranked},
