@@ -27,7 +27,8 @@ the first stage predicts from it too, and the second stage's left side is cleane
 Status: two uses. As a confirmation, by default: in closed loop by least squares a command-side
 cause (dead zone, clip, delay, drift, friction asymmetry) must also pass the gate on the
 instrumented design (tvsd.analysis.doctor._instrumented_check; docs/measurements/doctor-false-alarms.md,
-"Closed-loop false alarms").
+"Closed-loop false alarms"); the clip on its own design (IDENTIFIED_FOR, EXPECTED_FOR:
+docs/measurements/closedsat.md).
 As the whole analysis, opt-in (`diagnose(..., iv=True)`; `python -m tvsd.analysis.matrix_closed
 --variants ls,iv`), not the default, because it did not measure better. On 104 cases of the
 closed-loop family (docs/measurements/closed-loop-ls-iv.w*.jsonl, the same files through both): 3
