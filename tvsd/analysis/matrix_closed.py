@@ -15,7 +15,8 @@ command's lines), `ls1` (the folds' rule on, the lines still the command's), `ls
 instrumented confirmation with instrument.IDENTIFIED_ONLY and EXPECTED_MAPS: branch cldz), `lsm`
 (the clip confirmed on main's instrumented design, as before branch closedsat), `lsd` (the drift
 confirmed along the identified directions too), `lss` (the clip's confirmation on rows from the
-spin-up's end: instrument.steady_start's spin_only).
+spin-up's end: instrument.steady_start's spin_only); both measured and left off
+(docs/measurements/closedsat.md).
 
     python -m tvsd.analysis.matrix_closed OUT.jsonl [--reps 15] [--nulls 30] [--sizes 3,10]
         [--seed 0] [--worker 0 --workers 1] [--variants ls,iv] [--reversal]
