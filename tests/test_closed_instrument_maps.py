@@ -14,9 +14,7 @@ import pytest
 from tvsd.analysis import instrument
 
 
-def test_a_column_the_instruments_hold_at_zero_does_not_blow_up_the_structural_residual(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def test_a_column_the_instruments_hold_at_zero_does_not_blow_up_the_structural_residual() -> None:
     """A column that is ~0 on every row, measured and predicted alike (a Stribeck term at the
     scanning speed: 1e-9 here, above lstsq's rank cutoff), differing between the two by noise;
     least squares on the predicted columns gave it a coefficient ~1e10, which multiplied the
@@ -24,7 +22,7 @@ def test_a_column_the_instruments_hold_at_zero_does_not_blow_up_the_structural_r
     side off the predicted columns) must be the equation's noise: y = 2u + e, e ~ N(0, 1), so
     its std is 1 to within the estimate's O(1/√n) error and the tiny column's share (n = 4000:
     ±0.05 is > 3 standard errors of a sample std; 1.1 leaves room for both). With
-    IDENTIFIED_ONLY off (main's least squares on X̂) the residual is several times the noise."""
+    `identified_only` off (main's least squares on X̂) the residual is several times the noise."""
     g = np.random.default_rng(3)
     n = 4000
     z = g.standard_normal(n)  # the instrument (the reference's prediction of u)
@@ -38,14 +36,13 @@ def test_a_column_the_instruments_hold_at_zero_does_not_blow_up_the_structural_r
     iv = SimpleNamespace(X=np.column_stack([z, ones, tiny_hat]), y=y, rows_mask=np.ones(n, bool))
     Q, _ = np.linalg.qr(iv.X)
 
-    def structural_std() -> float:
-        left = instrument.structural_left_side(iv, measured)  # type: ignore[arg-type]
+    def structural_std(identified_only: bool) -> float:
+        left = instrument.structural_left_side(iv, measured, identified_only)  # type: ignore[arg-type]
         resid = left - Q @ (Q.T @ left)
         return float(np.std(resid)) if np.all(np.isfinite(resid)) else float("inf")
 
-    assert not structural_std() < 1.1  # main's rule blows up
-    monkeypatch.setattr(instrument, "IDENTIFIED_ONLY", True)
-    assert 0.9 < structural_std() < 1.1
+    assert not structural_std(False) < 1.1  # main's rule blows up
+    assert 0.9 < structural_std(True) < 1.1
 
 
 @pytest.mark.parametrize("mu", [-11.0, -3.0, 0.2, 5.0, 11.5])
@@ -66,20 +63,21 @@ def test_the_maps_expectations_match_a_monte_carlo(mu: float) -> None:
 def test_a_closed_loop_clip_at_the_drives_rail_is_confirmed_on_the_instruments(tmp_path: Path) -> None:
     """Closed-loop plan seed 71 (`matrix_closed --cells`), case 710138: a clip at 8.4 V (30×)
     on a plant whose identify steps drive the law to its ±12 V rail (47 % of the samples above
-    the clip). Least squares found it at z 37.5 (gate 3.7); the instrumented confirmation
-    (main's rule, `ls`) refuses it (z 1.5) because its left side carries a Stribeck column's
-    1e7 coefficient and the block is f(û); with IDENTIFIED_ONLY and EXPECTED_MAPS (`ls2`, off
-    by default: net 0 on seed 71, docs/measurements/cldz.md) it passes (z 5.5, gate 4.2).
+    the clip). Least squares finds it at z 37.5 (gate 3.7); the instrumented confirmation on
+    main's design (`lsm`, the rule before branch closedsat) refuses it (z 1.5): its left side
+    carries a Stribeck column's 1e7 coefficient and the block is f(û). The default (`ls`)
+    confirms the clip on its own design, E[f(u) | instruments] with θ_IV along identified
+    directions (instrument.IDENTIFIED_FOR, EXPECTED_FOR), and names it (z 5.5, gate 4.2).
     Deterministic (fixed seeds)."""
     from tvsd.analysis import matrix_closed as MC
 
     case = next(c for c in MC.plan_cells(8, (3.0, 10.0, 30.0), 71, 4) if c.seed == 710138)
     assert (case.cause, case.size) == ("saturation", 30.0)
     out = tmp_path / "one.jsonl"
-    MC.run(out, [case], ("ls", "ls2"), gain=False)
+    MC.run(out, [case], ("lsm", "ls"), gain=False)
     row = json.loads(out.read_text())
-    assert (row["ls"], row["ls2"]) == ("none", "saturation"), (row["ls_why"], row["ls2_why"])
-    assert row["ls_why"]["why_not"]["saturation"] == "not_instrumented"
+    assert (row["lsm"], row["ls"]) == ("none", "saturation"), (row["lsm_why"], row["ls_why"])
+    assert row["lsm_why"]["why_not"]["saturation"] == "not_instrumented"
 
 
 def test_a_dead_zone_the_command_never_enters_is_exposed_as_zero_noise_units() -> None:
@@ -119,3 +117,30 @@ def test_an_exposed_dead_zone_is_sized_by_the_torque_the_command_shows() -> None
     assert abs(beyond_coulomb(u, w, u0, np.abs(w) > MOVING_RAD_S) - 0.2) < 1e-6
     u0, got = deadzone_size(u, w, 100.0)
     assert u0 == 1.75 and got < 100.0  # half the 99 % point of |u| (3.5 V)
+
+
+def test_a_clip_the_baseline_absorbs_is_exposed_as_zero_noise_units() -> None:
+    """exposure.py's `exposed_units` for a clip: its torque less what the baseline's own columns
+    (u, ω, sgn ω, a constant) take. A command held at a 12 V rail beyond an 8 V clip loses a
+    constant 4 V, an offset the baseline absorbs whole; a command of two levels (6 V, and the
+    rail on one sample in 5) loses 4 V on the rail's samples, linear in u: a lower input gain,
+    absorbed whole too. `units` (the rms excess) is 4 V·b_u/(J·σv) and 4 V·√0.2·b_u/(J·σv)
+    for them, whatever the baseline takes. A clip whose excess is not linear in u (a sine
+    crossing it between the rail's samples) is exposed."""
+    from tvsd.analysis.exposure import exposure
+    from tvsd.config import load_config
+
+    g = np.random.default_rng(0)
+    plant = load_config().plant
+    scale = plant.kM * plant.ku / plant.R / (plant.J * 0.3)
+    w = 60.0 + g.standard_normal(4000)
+    held = exposure("saturation:u_max=8", np.full(4000, 12.0), w, plant, 0.3, 1e-3)
+    u = np.full(4000, 6.0)
+    u[::5] = 12.0
+    two = exposure("saturation:u_max=8", u, w, plant, 0.3, 1e-3)
+    for got, rms in ((held, 4.0), (two, 4.0 * np.sqrt(0.2))):
+        assert abs(got["units"] - rms * scale) < 1e-3 * got["units"]  # rounded to 5 digits
+        assert got["exposed_units"] < 1e-3  # float error of the lstsq, rounded
+    u[:] = 6.0 + 2.0 * np.sin(np.arange(4000) / 50.0)
+    u[::5] = 12.0
+    assert exposure("saturation:u_max=7", u, w, plant, 0.3, 1e-3)["exposed_units"] > 1.0

@@ -366,16 +366,23 @@ def _instrumented_check(
     matrix's closed-loop clips and delays stay far above the gate: 293 and 83–1406)."""
     if not instrument.excited(data):
         return None
-    memo: dict[str, C.Outcome] = {}
+    memo: dict[tuple[bool, bool, bool], C.Outcome] = {}
 
     def holds(cause: str) -> bool:
-        if "out" not in memo:
-            iv, _ = instrument.instrumented(prep, data.offset_term, rotary)
+        # Per cause (instrument.IDENTIFIED_FOR, EXPECTED_FOR; docs/measurements/closedsat.md): the
+        # clip's block as E[f(u) | instruments], θ_IV along identified directions only.
+        fors = (instrument.IDENTIFIED_FOR, instrument.EXPECTED_FOR, instrument.SPIN_ONLY_FOR)
+        key = (cause in fors[0], cause in fors[1], cause in fors[2])
+        if key not in memo:
+            ident, expect, spin = key
+            iv, _ = instrument.instrumented(
+                prep, data.offset_term, rotary, expected=expect or None, spin_only=spin
+            )
             iv = absorber.absorb(iv)
             iv.back_emf = measured.back_emf
-            iv.y = instrument.structural_left_side(iv, measured)
-            memo["out"] = C.test_all(iv, seed=seed)
-        out = memo["out"]
+            iv.y = instrument.structural_left_side(iv, measured, identified_only=ident or None)
+            memo[key] = C.test_all(iv, seed=seed)
+        out = memo[key]
         return any(t.cause == cause and t.z > out.threshold for t in out.tested)
 
     return holds

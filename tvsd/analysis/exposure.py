@@ -6,7 +6,10 @@ zone below every one (then it is a constant torque, a Coulomb level, in one dire
 rotation). These measures, taken on the recording itself (or on the same case recorded without
 the effect: the pilot), state the size in units the test can see:
 
-- saturation: the share of samples whose |u| exceeds u_max, and the rms excess in noise units;
+- saturation: the share of samples whose |u| exceeds u_max, the rms excess in noise units
+  (`units`), and the part of the clip's torque the baseline's own columns (u, ω, sgn ω, a
+  constant) cannot take (`exposed_units`, as the dead zone's): a clip that holds the command at
+  a rail on every step is partly a lower input gain, which the baseline absorbs;
 - dead zone: the share of moving samples where the command is inside the zone, or pushes
   against the motion (there a dead zone and Coulomb friction differ: docs/measurements/cldz.md, "Why, per
   cause"); its width in noise units (`units`, u0·b_u) and the part of its torque a Coulomb level cannot
@@ -55,7 +58,9 @@ def exposure(
     if e.name == "saturation":
         u_max = float(p["u_max"])
         out["share"] = float(np.mean(mag > u_max))
-        out["units"] = b_u * float(np.sqrt(np.mean(np.maximum(mag - u_max, 0.0) ** 2))) / jsv
+        excess = np.sign(u) * np.maximum(mag - u_max, 0.0)
+        out["units"] = b_u * float(np.sqrt(np.mean(excess**2))) / jsv
+        out["exposed_units"] = b_u * beyond_baseline(excess, u, omega, moving) / jsv
     elif e.name == "deadzone":
         u0 = float(p["u0"])
         against = moving & (np.sign(u) != np.sign(omega))
@@ -104,6 +109,18 @@ def _drift_visible(
     A = np.column_stack([um, wm, np.sign(wm), np.ones_like(wm)])
     coef, *_ = np.linalg.lstsq(A, d, rcond=None)
     return float(np.sqrt(np.mean((d - A @ coef) ** 2)))
+
+
+def beyond_baseline(d: np.ndarray, u: np.ndarray, omega: np.ndarray, moving: np.ndarray) -> float:
+    """rms over the moving samples of `d` (a command-side map's missing command, V) less its least-
+    squares fit on the baseline's own columns (u, ω, sgn ω, a constant): what a refit of the
+    rigid model cannot absorb of it."""
+    if np.count_nonzero(moving) < 10:
+        return 0.0
+    dm, um, wm = d[moving], u[moving], omega[moving]
+    A = np.column_stack([um, wm, np.sign(wm), np.ones_like(wm)])
+    coef, *_ = np.linalg.lstsq(A, dm, rcond=None)
+    return float(np.sqrt(np.mean((dm - A @ coef) ** 2)))
 
 
 def beyond_coulomb(u: np.ndarray, omega: np.ndarray, u0: float, moving: np.ndarray) -> float:

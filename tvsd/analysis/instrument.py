@@ -27,7 +27,8 @@ the first stage predicts from it too, and the second stage's left side is cleane
 Status: two uses. As a confirmation, by default: in closed loop by least squares a command-side
 cause (dead zone, clip, delay, drift, friction asymmetry) must also pass the gate on the
 instrumented design (tvsd.analysis.doctor._instrumented_check; docs/measurements/doctor-false-alarms.md,
-"Closed-loop false alarms").
+"Closed-loop false alarms"); the clip on its own design (IDENTIFIED_FOR, EXPECTED_FOR:
+docs/measurements/closedsat.md).
 As the whole analysis, opt-in (`diagnose(..., iv=True)`; `python -m tvsd.analysis.matrix_closed
 --variants ls,iv`), not the default, because it did not measure better. On 104 cases of the
 closed-loop family (docs/measurements/closed-loop-ls-iv.w*.jsonl, the same files through both): 3
@@ -38,7 +39,7 @@ lifts the first
 stage's share of the command's band-limited variance (0.87 → 0.96 on a 30 s case); what is left —
 the law's answer to the noise — is low-pass and, through the scanned nonlinear blocks of û, still
 fits. A file without a moving reference or a u_exc column instruments nothing: then the command-side
-causes are not testable (doctor.py drops them). """
+causes are not testable (doctor.py drops them)."""
 
 from __future__ import annotations
 
@@ -99,11 +100,17 @@ class FirstStage:
     bounds: tuple[float, float] = (0.0, 0.0)  # the recorded command's range (the law's rails)
 
 
-def steady_start(data: Dataset) -> int:
+def steady_start(data: Dataset, spin_only: bool = False) -> int:
     """The first sample after the spin-up: |ω_ref| has reached SPUN_SHARE of its level, and the
     tracking error (mean |ω_ref − ω| over SETTLE_S) is back under CATCH_UP × its median and stays
     there up to the middle of the file. Before it the drive may sit at its limit while the shaft
-    catches up: nothing a linear response to the reference describes."""
+    catches up: nothing a linear response to the reference describes.
+
+    `spin_only`: the first time the error is back under that bar after the spin-up, whatever
+    follows. A drive held at its rail on the identify steps makes a large error on every step,
+    which moved the start to the middle of the file (a clip near the rail: 15.4 s of 30) and
+    left half the clipped samples out of the clip's confirmation; its design models the rail
+    (E[f(u)] of u clipped to the recorded range), so it need not leave the steps out."""
     ref = bank(data)
     level = float(np.median(np.abs(ref[len(ref) // 5 :])))
     spun = np.flatnonzero(np.abs(ref) >= SPUN_SHARE * level)
@@ -111,12 +118,16 @@ def steady_start(data: Dataset) -> int:
     win = max(1, round(SETTLE_S * data.sample_rate_hz))
     speed = data.speed if data.speed is not None else np.gradient(data.position, data.t)
     err = np.convolve(np.abs(ref - speed), np.ones(win) / win, mode="same")
-    late = np.flatnonzero(err[: len(err) // 2] > CATCH_UP * float(np.median(err)))
+    bar = CATCH_UP * float(np.median(err))
+    if spin_only:
+        caught = np.flatnonzero(err[first:] <= bar)
+        return min(len(ref) - 1, first + win + (int(caught[0]) if len(caught) else 0))
+    late = np.flatnonzero(err[: len(err) // 2] > bar)
     after = int(late[-1]) + win if len(late) else 0
     return min(len(ref) - 1, max(first + win, after))
 
 
-def first_stage(prep: Prepared, use_exc: bool = True) -> FirstStage:
+def first_stage(prep: Prepared, use_exc: bool = True, spin_only: bool = False) -> FirstStage:
     """û and ω̂: the reference through the closed loop's own linear response, estimated over the
     file (Wiener filter H = S_rv / S_rr, Welch-averaged; any function of the reference, past or
     future, is a valid instrument). Constant lags would leave part of the loop's response to the
@@ -130,7 +141,7 @@ def first_stage(prep: Prepared, use_exc: bool = True) -> FirstStage:
     ref = bank(data)
     u_f = prep.lowpass(data.u)
     rate = data.sample_rate_hz
-    s0 = steady_start(data)
+    s0 = steady_start(data, spin_only)
     edge = slice(max(prep.trim, s0), len(u_f) - prep.trim)
     u_lin = _wiener(ref, data.u, rate, s0)
     w_lin = _wiener(ref, prep.speed, rate, s0)
@@ -181,7 +192,13 @@ def _r2(x: np.ndarray, fit: np.ndarray) -> float:
 
 
 def instrumented(
-    prep: Prepared, offset: bool, rotary: bool, use_exc: bool = True, measured: D.Design | None = None
+    prep: Prepared,
+    offset: bool,
+    rotary: bool,
+    use_exc: bool = True,
+    measured: D.Design | None = None,
+    expected: bool | None = None,
+    spin_only: bool = False,
 ) -> tuple[D.Design, FirstStage]:
     """The design with every command and speed regressor built from the reference's prediction
     (the acceleration, the angle and time as measured).
@@ -191,13 +208,15 @@ def instrumented(
     y − X·θ_IV — the equation's own error, which the instruments do not move. Without it the
     second stage's residual also holds (X − X̂)·θ, the law's answer to the noise (a low-pass,
     correlated with the noise), which the bootstrap's i.i.d. whitened errors do not describe and
-    the scanned command blocks (built from û) fit."""
-    fs = first_stage(prep, use_exc)
+    the scanned command blocks (built from û) fit. `expected`: the maps' blocks as
+    E[f(u) | instruments] (expected_maps; None: EXPECTED_MAPS); `spin_only`: rows from the
+    spin-up's end (steady_start)."""
+    fs = first_stage(prep, use_exc, spin_only)
     data = dataclasses.replace(prep.data, u=fs.u_hat)
     prep_iv = dataclasses.replace(prep, data=data, speed=fs.speed_hat)
-    t0 = float(prep.data.t[steady_start(prep.data)])
+    t0 = float(prep.data.t[steady_start(prep.data, spin_only)])
     design = D.build(prep_iv, offset, rotary, fit_mask=prep.t_rows >= t0)
-    if EXPECTED_MAPS:
+    if EXPECTED_MAPS if expected is None else expected:
         expected_maps(design, prep, fs)
     if measured is not None:
         design.y = structural_left_side(design, measured)
@@ -211,12 +230,18 @@ WEAK_F = 10.0  # a direction of the instrumented columns is identified from this
 # at 3x), net 0 (docs/measurements/cldz.md). Switched on by `matrix_closed --variants ls2`.
 IDENTIFIED_ONLY = False  # structural_left_side: 2SLS only along identified directions
 EXPECTED_MAPS = False  # the dead zone's and clip's instrumented blocks as E[f(u) | instruments]
+# Per cause, the confirmation's design (doctor._instrumented_check): the clip's block as
+# E[f(u) | instruments] (its tail, which f(û) misses) with θ_IV along identified directions only;
+# the dead zone keeps main's design (both cost one-direction zones at 30x, cldz.md). closedsat.md.
+IDENTIFIED_FOR: tuple[str, ...] = ("saturation",)
+EXPECTED_FOR: tuple[str, ...] = ("saturation",)
+SPIN_ONLY_FOR: tuple[str, ...] = ()  # rows from the spin-up's end (steady_start's spin_only)
 
 
-def structural_left_side(iv: D.Design, measured: D.Design) -> np.ndarray:
+def structural_left_side(iv: D.Design, measured: D.Design, identified_only: bool | None = None) -> np.ndarray:
     """y − (X − X̂)·θ_IV: the left side whose regression on X̂ leaves the structural residual
     y − X·θ_IV (unchanged y where the two designs' columns differ). θ_IV by least squares on X̂
-    (main's rule) unless IDENTIFIED_ONLY, which does the following.
+    (main's rule) unless `identified_only` (None: IDENTIFIED_ONLY), which does the following.
 
     θ_IV is fitted only along the directions of X̂ the instruments identify: a column that is
     ~0 on the rows (a Stribeck term at the scanning speed, e^−(ω/ωs)² ≈ 1e−50) or a
@@ -233,7 +258,7 @@ def structural_left_side(iv: D.Design, measured: D.Design) -> np.ndarray:
     if measured.X.shape != iv.X.shape:
         return iv.y
     m = iv.rows_mask
-    if not IDENTIFIED_ONLY:  # least squares on X̂ along every direction (main's rule)
+    if not (IDENTIFIED_ONLY if identified_only is None else identified_only):  # main's rule: lstsq on X̂
         theta, *_ = np.linalg.lstsq(iv.X[m], iv.y[m], rcond=None)
         return iv.y - (measured.X - iv.X) @ theta
     A, B, y = iv.X[m], measured.X[m], iv.y[m]

@@ -12,7 +12,11 @@ reference and, when recorded, identify's voltage excitation `u_exc` as instrumen
 `iv_ref` (the reference alone, as before u_exc was recorded), `ls0` (least squares as before this
 branch: every fold in the out-of-sample check, calibrate.heldout_gain; the line scan off the
 command's lines), `ls1` (the folds' rule on, the lines still the command's), `ls2` (the
-instrumented confirmation with instrument.IDENTIFIED_ONLY and EXPECTED_MAPS: branch cldz).
+instrumented confirmation with instrument.IDENTIFIED_ONLY and EXPECTED_MAPS: branch cldz), `lsm`
+(the clip confirmed on main's instrumented design, as before branch closedsat), `lsd` (the drift
+confirmed along the identified directions too), `lss` (the clip's confirmation on rows from the
+spin-up's end: instrument.steady_start's spin_only); both measured and left off
+(docs/measurements/closedsat.md).
 
     python -m tvsd.analysis.matrix_closed OUT.jsonl [--reps 15] [--nulls 30] [--sizes 3,10]
         [--seed 0] [--worker 0 --workers 1] [--variants ls,iv] [--reversal]
@@ -49,7 +53,7 @@ from tvsd.analysis import matrix as M
 from tvsd.causes import Effect, parse_effect
 from tvsd.config import Config, load_config
 
-VARIANTS = ("ls", "ls0", "ls1", "ls2", "iv", "iv_ref")
+VARIANTS = ("ls", "lsm", "lsd", "lss", "ls0", "ls1", "ls2", "iv", "iv_ref")
 
 
 def plan(n_null: int, reps: int, sizes: tuple[float, ...], seed: int) -> list[M.Case]:
@@ -136,9 +140,19 @@ def analyse(path: Path, cfg: Config, variant: str) -> tuple[str, float, dict[str
         calibrate.SKIP_UNDETERMINED_FOLDS = variant != "ls0"
         calibrate.LINES_OF_REFERENCE = variant not in ("ls0", "ls1")
         instrument.IDENTIFIED_ONLY = instrument.EXPECTED_MAPS = variant == "ls2"
-        dg = diagnose(data, cfg.plant.v0, iv=variant not in ("ls", "ls0", "ls1", "ls2"))
-        calibrate.SKIP_UNDETERMINED_FOLDS = calibrate.LINES_OF_REFERENCE = True
-        instrument.IDENTIFIED_ONLY = instrument.EXPECTED_MAPS = False
+        default_for = (instrument.IDENTIFIED_FOR, instrument.EXPECTED_FOR, instrument.SPIN_ONLY_FOR)
+        if variant == "lsm":
+            instrument.IDENTIFIED_FOR = instrument.EXPECTED_FOR = instrument.SPIN_ONLY_FOR = ()
+        elif variant == "lsd":
+            instrument.IDENTIFIED_FOR = (*instrument.IDENTIFIED_FOR, "drift")
+        elif variant == "lss":
+            instrument.SPIN_ONLY_FOR = ("saturation",)
+        try:
+            dg = diagnose(data, cfg.plant.v0, iv=variant.startswith("iv"))
+        finally:  # the defaults again, whatever the variant did
+            calibrate.SKIP_UNDETERMINED_FOLDS = calibrate.LINES_OF_REFERENCE = True
+            instrument.IDENTIFIED_ONLY = instrument.EXPECTED_MAPS = False
+            instrument.IDENTIFIED_FOR, instrument.EXPECTED_FOR, instrument.SPIN_ONLY_FOR = default_for
         found = dg.cause
         why = {
             "z": {s.cause: round(float(s.z), 3) for s in dg.ranked},
@@ -296,6 +310,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--variants", default="ls,iv")
     ap.add_argument("--causes", default="", help="only these causes (and the nulls)")
+    ap.add_argument("--no-nulls", action="store_true", help="with --causes: without the nulls")
+    ap.add_argument("--seeds", default="", help="only these case seeds (comma list; re-judging)")
     rounds_help = "only the plan's first N rounds (paired with a full run)"
     ap.add_argument("--rounds", type=int, default=0, help=rounds_help)
     ap.add_argument("--identify", default="", help="identify: overrides as JSON")
@@ -347,8 +363,11 @@ def main() -> None:
         if a.rounds:
             cases = cases[: a.rounds * round_length(a.nulls, a.reps, sizes)]
     if a.causes:
-        keep = set(a.causes.split(",")) | {"none"}
+        keep = set(a.causes.split(",")) | (set() if a.no_nulls else {"none"})
         cases = [c for c in cases if c.cause in keep]
+    if a.seeds:
+        chosen = {int(x) for x in a.seeds.split(",")}
+        cases = [c for c in cases if c.seed in chosen]
     mine = [c for k, c in enumerate(cases) if k % a.workers == a.worker]
     ident = json.loads(a.identify) if a.identify else None
     run(a.out, mine, tuple(a.variants.split(",")), identify=ident, cache=a.cache, gain=not a.no_gain)
