@@ -39,14 +39,23 @@ def fmt(value: Any) -> str:
 
 
 def print_table(rows: Sequence[Sequence[Any]], headers: Sequence[str] | None = None) -> None:
+    # Numbers right-aligned (digits line up), text left-aligned and the line's end not padded:
+    # a long text cell (a fault's message) must not push spaces into every other row.
+    numeric = [
+        bool(rows) and all(isinstance(r[j], int | float) and not isinstance(r[j], bool) for r in rows)
+        for j in range(len(rows[0]) if rows else len(headers or ()))
+    ]
     cells = [[fmt(v) for v in r] for r in rows]
     if headers:
         cells.insert(0, list(headers))
+    if not cells:
+        return
     widths = [max(len(r[j]) for r in cells) for j in range(len(cells[0]))]
     for n, r in enumerate(cells):
-        print(
-            "  ".join(c.rjust(w) if j else c.ljust(w) for j, (c, w) in enumerate(zip(r, widths, strict=True)))
+        line = "  ".join(
+            c.rjust(w) if numeric[j] else c.ljust(w) for j, (c, w) in enumerate(zip(r, widths, strict=True))
         )
+        print(line.rstrip())
         if headers and n == 0:
             print("  ".join("-" * w for w in widths))
 
