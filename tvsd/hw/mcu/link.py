@@ -43,7 +43,7 @@ from tvsd.hw.mcu.receiving import Receiver
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.shared_tx import SharedTx
 from tvsd.hw.mcu.spec import ProtocolSpec, load_spec
-from tvsd.hw.mcu.tty_workers import TtyWorkerBoost, priority_from_env
+from tvsd.hw.mcu.tty_workers import TtyWorkerBoost, mode_from_env
 
 __all__ = [
     "FLASH_HINT",
@@ -142,9 +142,9 @@ class McuLink:
             on_refused=on_refused,
         )
         # --realtime: the kernel's tty workers too, which hand every received byte to the reader
-        # (tvsd.hw.mcu.tty_workers: preempted, they held the MCU's frames up to 0.7 s)
-        tty_priority = priority_from_env() if io_priority is not None else 0
-        self._tty_workers = TtyWorkerBoost(tty_priority) if tty_priority > 0 else None
+        # (tvsd.hw.mcu.tty_workers: preempted, they held the MCU's frames up to 1.2 s)
+        tty_mode = mode_from_env() if io_priority is not None else "off"
+        self._tty_workers = TtyWorkerBoost(tty_mode) if tty_mode != "off" else None
 
     # the receiver's handlers, looked up at call time (a test may stand in for one)
     def _frames(self, frames: list[Frame], now: float) -> None:

@@ -6,17 +6,21 @@ kernel's unbound workqueue (`kworker/uN:M`) at normal priority. Traced in the so
 (docs/measurements/siltiming.md): a kworker preempted in the middle of that work by the daemon's
 real-time threads stayed runnable but unscheduled for 0.2-0.72 s while normal-priority tasks (the
 CPU hogs, other jobs) ran; the port's next work waits behind it (a work item does not run twice
-at once), so the MCU's state frames reached the daemon up to 719 ms late (its late-input hold
+at once), so the MCU's state frames reached the daemon up to 1.2 s late (the late-input hold
 latches at 500 ms: `mcu_stale`), and in the SIL the host's heartbeats reached the virtual
 firmware as late (its watchdog cut: `mcu_watchdog`), while the daemon's and the SIL's own
 threads were on time.
 
-`TtyWorkerBoost` puts those kworkers on SCHED_FIFO `priority` (1: below every tvsd thread, above
-all normal-priority tasks) and re-checks every PERIOD_S (the pool creates workers on demand; a new
-one starts at normal priority). At `stop()` it puts the ones it changed back to SCHED_OTHER. They
-serve other unbound work too: each item is short, and the kernel's RT throttling
-(sched_rt_runtime_us) still leaves normal tasks their share. Needs CAP_SYS_NICE (what --realtime
-needs); refused, it says so and the daemon runs on without it.
+`TtyWorkerBoost` raises those kworkers and re-checks every PERIOD_S (the pool creates workers on
+demand, at normal priority); at `stop()` it puts back the ones it changed. Two ways (MODES):
+- "nice" (the default): SCHED_OTHER at nice NICE. The fair scheduler then runs a woken worker
+  almost at once (weight 88761 against a hog's 1024), and its time stays out of the real-time
+  budget (sched_rt_runtime_us), so it can take no real-time time from the control loop;
+- "fifo": SCHED_FIFO FIFO_PRIORITY (1, below every tvsd thread); its time counts as real-time.
+Both took the pty's worst delay in the soak from 255-994 ms to 4-75 ms (no cut at the wire
+model's allowance, no mcu_stale).
+$TVSD_TTY_WORKERS picks one, or "off". They serve other unbound work too (each item short).
+Needs CAP_SYS_NICE (what --realtime needs); refused, it says so and the daemon runs on.
 """
 
 from __future__ import annotations
@@ -26,17 +30,19 @@ import os
 import threading
 from pathlib import Path
 
-PRIORITY = 1  # SCHED_FIFO: the lowest real-time priority, below the daemon's (40-80) and the SIL's (30-46)
+MODES = ("nice", "fifo", "off")
+NICE = -20
+FIFO_PRIORITY = 1  # the lowest real-time priority, below the daemon's (40-80) and the SIL's (30-46)
 PERIOD_S = 1.0
-ENV_PRIORITY = "TVSD_TTY_WORKER_PRIORITY"  # a measuring knob: another priority; 0 turns the boost off
+ENV_MODE = "TVSD_TTY_WORKERS"  # a measuring knob, as TVSD_MLOCK: nice (default), fifo or off
 UNBOUND_PREFIX = "kworker/u"
 PROC = Path("/proc")
 
 
-def priority_from_env(default: int = PRIORITY) -> int:
-    """$TVSD_TTY_WORKER_PRIORITY if it is an integer in 0..99 (0: off), else `default`."""
-    raw = os.environ.get(ENV_PRIORITY, "").strip()
-    return int(raw) if raw.isdigit() and 0 <= int(raw) <= 99 else default
+def mode_from_env(default: str = "nice") -> str:
+    """$TVSD_TTY_WORKERS if it names a mode, else `default`."""
+    raw = os.environ.get(ENV_MODE, "").strip()
+    return raw if raw in MODES else default
 
 
 def unbound_workers(proc: Path = PROC) -> list[int]:
@@ -52,23 +58,36 @@ def unbound_workers(proc: Path = PROC) -> list[int]:
 
 
 class TtyWorkerBoost:
-    """SCHED_FIFO `priority` for the unbound kworkers while running (see the module's text)."""
+    """The unbound kworkers raised (`mode` "nice" or "fifo") while running (see the module)."""
 
-    def __init__(self, priority: int = PRIORITY, period_s: float = PERIOD_S, proc: Path = PROC) -> None:
-        self.priority, self.period_s, self.proc = priority, period_s, proc
+    def __init__(self, mode: str = "nice", period_s: float = PERIOD_S, proc: Path = PROC) -> None:
+        if mode not in ("nice", "fifo"):
+            raise ValueError(f"tty worker boost {mode!r}: nice or fifo")
+        self.mode, self.period_s, self.proc = mode, period_s, proc
         self.changed: set[int] = set()
         self.status = "not started"
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
+    def _raise(self, pid: int) -> bool:
+        """Raise one worker if it is still at normal priority; whether it was changed."""
+        if os.sched_getscheduler(pid) != os.SCHED_OTHER:
+            return False
+        if self.mode == "fifo":
+            os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
+            return True
+        if os.getpriority(os.PRIO_PROCESS, pid) <= NICE:
+            return False
+        os.setpriority(os.PRIO_PROCESS, pid, NICE)
+        return True
+
     def apply(self) -> int:
-        """One pass: the kworkers still at normal priority raised; how many. Sets `status`."""
+        """One pass: the workers still at normal priority raised; how many. Sets `status`."""
         raised = 0
         for pid in unbound_workers(self.proc):
             try:
-                if os.sched_getscheduler(pid) != os.SCHED_OTHER:
+                if not self._raise(pid):
                     continue
-                os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(self.priority))
             except ProcessLookupError:  # the pool retired it meanwhile
                 continue
             except PermissionError as exc:
@@ -76,7 +95,8 @@ class TtyWorkerBoost:
                 return raised
             self.changed.add(pid)
             raised += 1
-        self.status = f"granted (SCHED_FIFO {self.priority}, {len(self.changed)} workers)"
+        how = f"nice {NICE}" if self.mode == "nice" else f"SCHED_FIFO {FIFO_PRIORITY}"
+        self.status = f"granted ({how}, {len(self.changed)} workers)"
         return raised
 
     def start(self) -> str:
@@ -93,12 +113,14 @@ class TtyWorkerBoost:
             self.apply()
 
     def stop(self) -> None:
-        """Stop re-checking; the kworkers it raised back to SCHED_OTHER (idempotent)."""
+        """Stop re-checking; the workers it raised back to SCHED_OTHER, nice 0 (idempotent)."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
         for pid in self.changed:
             with contextlib.suppress(OSError):
-                if os.sched_getscheduler(pid) == os.SCHED_FIFO:
+                if self.mode == "fifo" and os.sched_getscheduler(pid) == os.SCHED_FIFO:
                     os.sched_setscheduler(pid, os.SCHED_OTHER, os.sched_param(0))
+                elif self.mode == "nice" and os.getpriority(os.PRIO_PROCESS, pid) == NICE:
+                    os.setpriority(os.PRIO_PROCESS, pid, 0)
         self.changed.clear()
