@@ -84,3 +84,14 @@ def test_watch_shows_a_scanning_daemon(sil: Path) -> None:
         assert states == ["scanning", "scanning"] and refs == [20.0, 20.0], out
     for row in ("loop", "floor", "imu", "link", "points", "faults", "last 60 s"):
         assert f"\n{row}" in out, (row, out)
+
+
+def test_a_daemon_without_realtime_warns_at_start_with_the_risk_and_the_fix(sil: Path) -> None:
+    """`tvsd --sil` as a user without CAP_SYS_NICE runs it (no --realtime): one line on stderr
+    names what fails beside CPU load (the watchdog cut, the stale frames) and the fix (issue 13:
+    such a daemon faulted in 3 of 3 runs beside 2 `yes` loops, docs/measurements/siltiming.md)."""
+    log = (sil.parent.parent / "tvsd.log").read_text()
+    lines = [line for line in log.splitlines() if "WARNING: running without --realtime" in line]
+    assert len(lines) == 1, log[-2000:]
+    for word in ("heartbeat", "mcu_watchdog", "mcu_stale", "Fix: start tvsd with --realtime", "CAP_SYS_NICE"):
+        assert word in lines[0], lines[0]

@@ -72,3 +72,21 @@ def request_realtime(priority: int = 80, cpu: int | None = None, lock: bool = Tr
     mode = mlock_mode()
     mem = "not requested" if not lock or mode == "none" else lock_memory(mode)
     return Realtime(fifo, aff, mem)
+
+
+# Without --realtime every thread of tvsd (the 10 kHz control loop, which writes the MCU's
+# heartbeats), of the SIL devices and the kernel's tty workers shares the CPU with any other
+# program. Measured beside 2 `yes` loops (docs/measurements/siltiming.md): heartbeats up to 164 ms
+# apart, the loop missing 40 % of its ticks, the firmware's watchdog (50 ms) cutting within seconds.
+# That cut is the firmware doing its job for a starved host, so no setting keeps such a daemon
+# scanning: the user is told at start, with the fix.
+def not_realtime_warning(how: str) -> str:
+    """The start-up warning of a daemon running `how` ("without --realtime", "with --realtime
+    refused"): the risk and the fix, one line."""
+    return (
+        f"tvsd: WARNING: running {how}: the control loop, which sends the MCU's heartbeat, shares "
+        "the CPU with every other program. A CPU-heavy program beside it (a compile, `yes`) delays "
+        "heartbeats past the firmware's watchdog: the MCU cuts PWM and laser (fault mcu_watchdog), "
+        "state frames come late (mcu_stale), and the drive stops. Fix: start tvsd with --realtime, "
+        "as root or with CAP_SYS_NICE and CAP_IPC_LOCK (the systemd unit grants both)."
+    )

@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from tvsd.config import Config
+from tvsd.control.realtime import not_realtime_warning
 from tvsd.control.runner import Runner
 from tvsd.control.setup import Setup
 from tvsd.daemon.api import Api
@@ -141,6 +142,8 @@ class Daemon(DeviceEvents):
                     f"memory lock {rt.mlockall}",
                     file=sys.stderr,
                 )
+                if rt.sched_fifo.startswith("refused"):  # asked, not granted: as without it
+                    print(not_realtime_warning("with --realtime refused"), file=sys.stderr)
             # What is built by now lives as long as the daemon: out of the collector's sight. A
             # full collection over it held the GIL 45–71 ms (measured in SIL), stopping the link,
             # the IMU reader and the event loop past the 40 ms link timeout and 50 ms watchdog.

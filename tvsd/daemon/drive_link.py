@@ -383,6 +383,7 @@ class DriveLink:
             "firmware": self._firmware_counters(),
             "events_dropped": st.events_dropped,
             "io_thread_fifo": self.link.io_realtime,
+            "tty_workers": self.link.tty_workers,  # the kernel's, which hand over the MCU's bytes
             **({"sil_pid": self.sil.pid} if self.sil is not None else {}),
             "steppers": axes,
         }

@@ -151,10 +151,13 @@ def _io_side_realtime() -> None:
 
 
 async def _serve(args: argparse.Namespace, cfg: Config, config_text: str) -> int:
+    from tvsd.control.realtime import not_realtime_warning
     from tvsd.daemon.app import Daemon
 
     if args.realtime:
         _io_side_realtime()
+    else:
+        print(not_realtime_warning("without --realtime"), file=sys.stderr)
     daemon = Daemon(
         cfg,
         args.socket,

@@ -397,6 +397,7 @@ def _figures(
         "soak_kernel_heartbeat_gap_max_ms": after["link"].get("kernel_heartbeat_gap_max_ms"),
         **_holds(before["link"], after["link"], listed_holds),
         "soak_link_events_dropped": after["link"].get("events_dropped"),
+        "soak_tty_workers": after["link"].get("tty_workers"),
         "soak_mcu_frames_lost": after["link"].get("lost_frames", 0) - before["link"].get("lost_frames", 0),
         "soak_loop_ticks": la["ticks"] - lb["ticks"],
         "soak_loop_missed_ticks": la["missed_ticks"] - lb["missed_ticks"],

@@ -67,6 +67,7 @@ _LABELS = (*(f"<={e:g}" for e in DELAY_EDGES_MS), f">{DELAY_EDGES_MS[-1]:g}")
 # The virtual MCU's host bytes not yet in the core: (core ticks, arrival, bytes, a heartbeat alone).
 QueuedRx = Iterable[tuple[int, float, bytes, bool]]
 HB_MAX_AGE_US = 1_000_000  # a heartbeat's host_us older than this at its read: not trusted
+LATE_KEPT = 30  # the latest heartbeats kept with their times, to match against a kworker trace
 
 
 @dataclass
@@ -80,12 +81,17 @@ class WireStats:
     hold_max_ms: float = 0.0  # wall time of the longest wait
     released_by_heartbeat: int = 0  # a heartbeat sent before the edge came: no cut
     cut_at_allowance: int = 0  # none came within the allowance: crossed, and the watchdog cut
+    # the LATE_KEPT latest reads: (delay ms, sent, read; CLOCK_MONOTONIC s), smallest first
+    latest: list[tuple[float, float, float]] = field(default_factory=list)
 
-    def heartbeat(self, delay_s: float) -> None:
+    def heartbeat(self, delay_s: float, read_at: float = math.nan) -> None:
         ms = delay_s * 1e3
         self.heartbeats += 1
         self.delay_max_ms = max(self.delay_max_ms, ms)
         self.delay_hist[bisect.bisect_left(DELAY_EDGES_MS, ms)] += 1
+        if len(self.latest) < LATE_KEPT or ms > self.latest[0][0]:
+            bisect.insort(self.latest, (ms, read_at - delay_s, read_at))
+            del self.latest[: max(len(self.latest) - LATE_KEPT, 0)]
 
     def quantile_ms(self, q: float) -> float:
         """Upper edge of the bin holding quantile q (inf: above the last edge)."""
@@ -107,6 +113,10 @@ class WireStats:
             "hold_max_ms": round(self.hold_max_ms, 3),
             "released_by_heartbeat": self.released_by_heartbeat,
             "cut_at_allowance": self.cut_at_allowance,
+            "latest": [
+                {"delay_ms": round(d, 3), "sent": round(s, 6), "read": round(r, 6)}
+                for d, s, r in reversed(self.latest)
+            ],
         }
 
 
@@ -268,7 +278,8 @@ class WireModel:
                     host_us = int.from_bytes(buf[i + FRAME_HEADER : i + FRAME_HEADER + size], "little")
                     age_us = (arrival_us - host_us) % 2**32
                     if age_us <= HB_MAX_AGE_US:
-                        self.stats.heartbeat(age_us * 1e-6)  # else not a time we can trust: the read's
+                        # (else not a time we can trust: the read's)
+                        self.stats.heartbeat(age_us * 1e-6, arrival)
                         sent = max(last, arrival - age_us * 1e-6)
                         parts.append((sent, data[start : end - skip]))
                         start, last = end - skip, sent

@@ -43,6 +43,7 @@ from tvsd.hw.mcu.receiving import Receiver
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.shared_tx import SharedTx
 from tvsd.hw.mcu.spec import ProtocolSpec, load_spec
+from tvsd.hw.mcu.tty_workers import TtyWorkerBoost, mode_from_env
 
 __all__ = [
     "FLASH_HINT",
@@ -140,6 +141,10 @@ class McuLink:
             on_link=on_link,
             on_refused=on_refused,
         )
+        # --realtime: the kernel's tty workers too, which hand every received byte to the reader
+        # (tvsd.hw.mcu.tty_workers: preempted, they held the MCU's frames up to 1.2 s)
+        tty_mode = mode_from_env() if io_priority is not None else "off"
+        self._tty_workers = TtyWorkerBoost(tty_mode) if tty_mode != "off" else None
 
     # the receiver's handlers, looked up at call time (a test may stand in for one)
     def _frames(self, frames: list[Frame], now: float) -> None:
@@ -158,11 +163,15 @@ class McuLink:
         self._loop = asyncio.get_running_loop()
         self._rx.attach(self._loop)
         self._serial = open_serial(self.settings.port, self.settings.baud)
+        if self._tty_workers is not None:
+            self._tty_workers.start()
         self._io.start(self._serial.fileno())
 
     async def close(self) -> None:
         await self.stop_heartbeat()
         self._io.stop()
+        if self._tty_workers is not None:
+            self._tty_workers.stop()
         if self._serial is not None:
             self._serial.close()
             self._serial = None
@@ -350,6 +359,11 @@ class McuLink:
     def io_realtime(self) -> str:
         """What the I/O thread's SCHED_FIFO request got ("not requested" without one)."""
         return self._io.realtime
+
+    @property
+    def tty_workers(self) -> str:
+        """What raising the kernel's tty workers got (tvsd.hw.mcu.tty_workers; --realtime only)."""
+        return self._tty_workers.status if self._tty_workers is not None else "not requested"
 
     @property
     def steppers(self) -> dict[int, StepperState]:
