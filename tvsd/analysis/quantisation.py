@@ -21,6 +21,10 @@ count rate's fractional part × fs and harmonics, aliased. The speed's own varia
 spectral segment (vibration, excitation) spreads them by n·δω/q Hz for harmonic n: at 8192
 counts/rev hundreds of hertz (white in the band), at 256 counts/rev tens, so there the floor is
 the lines' mean level, not their shape (docs/measurements/quantfloor.md).
+
+The rows the doctor leaves out (the shaft stuck) are gaps in the residual; with this floor their
+edges are ramped (`gated`), else they leak its f⁴ power into the lowest bins
+(docs/measurements/quantlow.md).
 """
 
 from __future__ import annotations
