@@ -20,7 +20,8 @@ from scipy.signal import filtfilt, lfilter
 
 from tvsd.analysis import quantisation
 from tvsd.analysis.dataset import ROTARY, Dataset
-from tvsd.analysis.prep import Band, prepare
+from tvsd.analysis.design import STUCK_SHARE
+from tvsd.analysis.prep import Band, Prepared, prepare
 
 PROFILES = ("staircase", "multisine", "steps")
 
@@ -65,8 +66,23 @@ def _profile(rng: np.random.Generator, kind: str, n: int, fs: float, top: float)
     return np.asarray(lfilter([a], [1.0, a - 1.0], raw, zi=[raw[0] * (1 - a)])[0])
 
 
-def residual(null: Null, rng: np.random.Generator) -> tuple[np.ndarray, float, quantisation.Floor | None]:
-    """The residual rows, their rate, and the quantisation floor the doctor would use."""
+def residual(
+    null: Null, rng: np.random.Generator, gaps: bool = False
+) -> tuple[np.ndarray, float, quantisation.Floor | None]:
+    """The residual rows, their rate, and the quantisation floor the doctor would use. `gaps`:
+    the rows where the shaft is (nearly) stuck left out, as the doctor leaves them out
+    (tvsd.analysis.design's STUCK_SHARE), and the rest ramped in and out as the doctor does."""
+    resid, keep, prep = rows(null, rng)
+    rate = null.fs / prep.band.decim
+    if not gaps:
+        return resid, rate, quantisation.floor(prep, np.ones(len(resid), dtype=bool))
+    gated, floor = quantisation.gated(prep, keep, resid, rate)
+    return gated, rate, floor
+
+
+def rows(null: Null, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, Prepared]:
+    """The residual rows (every row), the rows the doctor would keep (moving), and the prepared
+    signals."""
     fs, n = null.fs, int(null.seconds * null.fs)
     q = 2 * math.pi / null.counts
     h = 1.0 / fs
@@ -91,5 +107,6 @@ def residual(null: Null, rng: np.random.Generator) -> tuple[np.ndarray, float, q
     damping = (1.0 - decay) * fs  # the OU's pull, which the baseline's −c·ω column fits
     model = np.gradient(filtfilt(prep.b, prep.a, w_det), h) - damping * prep.lowpass(w_vib)
     resid = prep.rows(prep.accel - model)
-    keep = np.ones(len(resid), dtype=bool)
-    return resid, fs / prep.band.decim, quantisation.floor(prep, keep)
+    w = prep.rows(prep.speed)
+    keep = np.abs(w) > STUCK_SHARE * float(np.max(np.abs(w)))
+    return resid, keep, prep

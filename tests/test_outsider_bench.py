@@ -84,6 +84,19 @@ def test_outsider_case_is_named(tmp_path: Path, seed: int, cause: str, size: flo
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("seed", [7000, 7022])
+def test_a_few_counts_per_sample_null_is_none(tmp_path: Path, seed: int) -> None:
+    """Two nulls of the outsider batch (docs/measurements/quantlow.md), drawn as they were: 256
+    counts/rev, the shaft at 0.1–3 counts per sample (o07000: 1 kHz PRBS, o07022: 500 Hz
+    staircase). `colored_noise` on branch quantfloor: the gaps' hard edges leaked the
+    quantisation's f⁴ power into the lowest bins (tvsd.analysis.quantisation.gated)."""
+    s = ob.draw(seed, "none", 0.0)
+    path = tmp_path / f"{s.name}.csv"
+    ob.write(path, s, ob.make(s))
+    assert _analyze(path)["cause"] == "none"
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["null-encoder-500hz", "delay-encoder-500hz"])
 def test_stored_outsider_recording(tmp_path: Path, name: str) -> None:
     """Two stored outsider recordings (500 Hz, speed = the encoder's backward difference, one of

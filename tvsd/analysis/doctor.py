@@ -214,9 +214,10 @@ def _diagnose(
     )
     say("testing the noise colour")
     rate_rows = 1.0 / float(np.median(np.diff(prep.t_rows)))
-    resid = np.where(out.keep, instrument.residual(measured, design, verdict), 0.0)
-    # An encoder-difference speed's quantisation: a known floor in both spectral shapes.
-    floor = quantisation.floor(prep, out.keep)
+    # An encoder-difference speed's quantisation: a known floor in both spectral shapes, and the
+    # rows ramped in and out at the gaps (a hard edge leaks its f⁴ power into the lowest bins).
+    resid = instrument.residual(measured, design, verdict)
+    resid, floor = quantisation.gated(prep, out.keep, resid, rate_rows)
     noise = analyse(resid, rate_rows, params["J"] if params["J"] > 0 else 1.0, prep.band.cutoff_hz, floor)
     ranked = verdict.ranked
     # Closed loop: the feedback shapes the equation's residual (the command answers its noise,
@@ -413,8 +414,8 @@ def _peak_in_plant(
     if resid is None:
         return False
     rate = 1.0 / float(np.median(np.diff(prep.t_rows)))
-    floor = quantisation.floor(prep, keep)
-    again = analyse(np.where(keep, resid, 0.0), rate, 1.0, prep.band.cutoff_hz, floor)
+    gated, floor = quantisation.gated(prep, keep, resid, rate)
+    again = analyse(gated, rate, 1.0, prep.band.cutoff_hz, floor)
     if spectral_cause(again, COLOUR_P) != "resonance":
         return False
     df = float(noise.freq[1] - noise.freq[0]) if len(noise.freq) > 1 else 0.0

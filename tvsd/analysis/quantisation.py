@@ -21,6 +21,10 @@ count rate's fractional part × fs and harmonics, aliased. The speed's own varia
 spectral segment (vibration, excitation) spreads them by n·δω/q Hz for harmonic n: at 8192
 counts/rev hundreds of hertz (white in the band), at 256 counts/rev tens, so there the floor is
 the lines' mean level, not their shape (docs/measurements/quantfloor.md).
+
+The rows the doctor leaves out (the shaft stuck) are gaps in the residual; with this floor their
+edges are ramped (`gated`), else they leak its f⁴ power into the lowest bins
+(docs/measurements/quantlow.md).
 """
 
 from __future__ import annotations
@@ -127,24 +131,31 @@ def _gain(prep: Prepared, f: np.ndarray) -> np.ndarray:
     return np.asarray(g)
 
 
-def floor(prep: Prepared, keep: np.ndarray) -> Floor | None:
-    """The quantisation's one-sided PSD in the residual rows (zero outside `keep`, as the doctor
-    passes them), as a function of the rows' frequency; None when ω is not a count difference."""
+def _step(prep: Prepared) -> float | None:
+    """The recorded speed's count step, None when it is not a rotary count difference."""
     d = prep.data
     if d.speed is None or d.units.axis != "rotary":
         return None
     counts = d.meta.get("encoder_counts_per_rev")
-    fs = d.sample_rate_hz
-    step = speed_step(d.speed, fs, float(counts) if counts is not None else None)
-    if step is None:
+    return speed_step(d.speed, d.sample_rate_hz, float(counts) if counts is not None else None)
+
+
+def floor(prep: Prepared, keep: np.ndarray) -> Floor | None:
+    """The quantisation's one-sided PSD in the residual rows, as a function of the rows'
+    frequency; None when ω is not a count difference. `keep`: each row's weight in the residual
+    the spectral tests see, as power (0 outside the rows kept, 1 inside; `gated`'s ramps squared)."""
+    d = prep.data
+    step = _step(prep)
+    if step is None or d.speed is None:
         return None
+    fs = d.sample_rate_hz
     b, a = butter(2, SPEED_HZ / (fs / 2))
     speed = filtfilt(b, a, d.speed)
     weight = np.zeros(len(speed))  # full-rate samples of the rows kept (each row stands for decim)
     rows_at = prep.trim + prep.band.decim * np.arange(len(keep))
     for j in range(prep.band.decim):
         idx = np.clip(rows_at + j - prep.band.decim // 2, 0, len(speed) - 1)
-        weight[idx] = np.where(keep, 1.0, weight[idx])
+        weight[idx] = np.where(keep > 0, keep, weight[idx])
     weight *= len(speed) / max(prep.band.decim * len(keep), 1)  # the mean over the rows, not the record
     s_e = error_psd(speed, weight, step / fs, fs, SEGMENT_S)
     rows_rate = fs / prep.band.decim
@@ -161,3 +172,41 @@ def floor(prep: Prepared, keep: np.ndarray) -> Floor | None:
         return total
 
     return psd
+
+
+EDGE_TAPER_S = 0.1  # the ramp into and out of each stretch of rows kept (see `gated`)
+
+
+def edge_taper(keep: np.ndarray, rate_hz: float, seconds: float = EDGE_TAPER_S) -> np.ndarray:
+    """Weights of the rows: 0 outside `keep`, rising as sin² over `seconds` from each row left out
+    to 1 (the record's own ends are not edges: the Welch segment's window tapers them)."""
+    i = np.arange(len(keep))
+    far = len(keep) + int(seconds * rate_hz) + 1
+    last_out = np.maximum.accumulate(np.where(keep, -far, i))
+    next_out = np.minimum.accumulate(np.where(keep, len(keep) + far, i)[::-1])[::-1]
+    dist = np.minimum(i - last_out, next_out - i)
+    ramp = np.sin(0.5 * np.pi * np.minimum(dist / max(seconds * rate_hz, 1e-9), 1.0)) ** 2
+    return np.asarray(np.where(keep, ramp, 0.0))
+
+
+def gated(
+    prep: Prepared, keep: np.ndarray, residual: np.ndarray, rate_hz: float
+) -> tuple[np.ndarray, Floor | None]:
+    """The residual rows the spectral tests see, and the quantisation's floor in them.
+
+    Rows left out (the shaft stuck) are zeros. With a count-difference speed, a hard edge there
+    multiplies the residual by a step, whose 1/ν² sidelobes carry the quantisation's f⁴ power
+    from the band's top (10⁴–10⁵× its in-band level) into the lowest bins: on the outsider's
+    256-count nulls 3·10⁵× the floor at 0.5–1 Hz, the whole low end of the residual, and
+    `colored_noise` (docs/measurements/quantlow.md). Nor is that leak the stationary floor seen
+    through the gaps: the speed is lowest at a gap's edge, its quantisation a pulse train, and
+    the leak computed from the rows' mean floor left 5 of 200 gapped family nulls coloured.
+    So each stretch of rows is ramped in and out (sin² over EDGE_TAPER_S: sidelobes ∝ 1/ν³,
+    the leak from 50–100 Hz down by (ν·T)⁴ ≈ 600–10⁴), and the floor follows the ramped rows
+    (their weights squared). Without a floor (a tachometer, tvsd's own speed: no f⁴ term) the
+    rows are passed as they were: main's path."""
+    resid = np.where(keep, residual, 0.0)
+    if _step(prep) is None:
+        return resid, None
+    w = edge_taper(keep, rate_hz)
+    return w * resid, floor(prep, w * w)
