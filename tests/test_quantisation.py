@@ -8,6 +8,7 @@ import numpy as np
 import quantisation_nulls as qn
 from scipy.stats import binom
 
+from tvsd.analysis import count_grid
 from tvsd.analysis import quantisation as Q
 from tvsd.analysis.dataset import ROTARY, Dataset
 from tvsd.analysis.noise import _welch, colour_test
@@ -24,12 +25,12 @@ def test_the_speeds_grid_is_read_from_the_header_or_the_data() -> None:
     phi = np.cumsum(30.0 + 10.0 * np.sin(np.arange(n) / fs * 2.0)) / fs  # 3–7 counts per sample
     counts = np.floor(phi / q)
     w_enc = np.diff(np.concatenate([[0.0], counts])) * q * fs
-    assert Q.speed_step(w_enc, fs, 1024.0) == 2 * math.pi / 1024 * fs
-    assert math.isclose(Q.speed_step(w_enc, fs, None) or 0.0, q * fs, rel_tol=1e-9)
+    assert count_grid.speed_step(w_enc, fs, 1024.0) == 2 * math.pi / 1024 * fs
+    assert math.isclose(count_grid.speed_step(w_enc, fs, None) or 0.0, q * fs, rel_tol=1e-9)
     w_float = np.round(w_enc + g.normal(0.0, 0.05, n), 7)  # period mean + noise, 7 digits
-    assert Q.speed_step(w_float, fs, 8192.0) is None
-    assert Q.speed_step(w_float, fs, None) is None
-    assert Q.speed_step(w_enc, fs, 1000.0) is None  # a declared count ω is not the difference of
+    assert count_grid.speed_step(w_float, fs, 8192.0) is None
+    assert count_grid.speed_step(w_float, fs, None) is None
+    assert count_grid.speed_step(w_enc, fs, 1000.0) is None  # a declared count ω is not the difference of
 
 
 def test_a_speed_spread_over_many_counts_gives_the_white_floor() -> None:

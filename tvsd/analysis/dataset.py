@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from tvsd.analysis import timing
+from tvsd.analysis import count_grid, timing
 from tvsd.config import Config
 from tvsd.errors import DataFileError
 from tvsd.recording.csvfile import read as read_recording
@@ -129,6 +129,11 @@ def load(path: Path, cfg: Config) -> Dataset:
         # moved onto it (the lag measured against φ's backward difference), not read as a delay.
         lag, share = timing.speed_lag(rec.omega, rec.phi, rec.sample_rate_hz)
         if timing.off_reference(lag, share):
+            # An encoder difference keeps its quantisation after the shift (an all-pass moves no
+            # power) but leaves the count grid: its step is read here, on the recorded samples.
+            step = count_grid.recorded_step(rec.omega, rec.sample_rate_hz, rec.meta)
+            if step is not None:
+                meta[count_grid.STEP_KEY] = repr(step)
             speed = timing.retimed(rec.omega, lag)
             meta["omega_timing"] = (
                 f"omega lagged phi's period mean by {lag:.2f} samples ({100 * share:.0f} % of their "

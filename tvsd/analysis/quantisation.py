@@ -35,46 +35,12 @@ from collections.abc import Callable
 import numpy as np
 from scipy.signal import butter, filtfilt, freqz
 
+from tvsd.analysis.count_grid import STEP_KEY, recorded_step
 from tvsd.analysis.prep import Prepared, _antialias
 
 SEGMENT_S = 4.0  # tvsd.analysis.noise's Welch segment (noise imports this module)
 
-GRID_TOL = 1e-3  # |ω/s − round(ω/s)| below this is on the grid (the CSV's 7 digits: ≤ 5e-4 counts)
-GRID_SHARE = 0.99  # share of the samples that must be on it
-MIN_LEVELS = 3  # a grid needs at least this many distinct count levels to be read from the data
-
 Floor = Callable[[np.ndarray], np.ndarray]
-
-
-def on_grid(omega: np.ndarray, step: float) -> bool:
-    """Whether the speed is a whole number of steps in (almost) every sample."""
-    if not (math.isfinite(step) and step > 0):
-        return False
-    x = omega / step
-    return bool(np.mean(np.abs(x - np.round(x)) < GRID_TOL) >= GRID_SHARE)
-
-
-def read_step(omega: np.ndarray) -> float | None:
-    """The grid step the speed is seen to lie on, or None: the smallest gap between its distinct
-    levels (levels within 1e-5 relative merged: printing), confirmed by `on_grid`."""
-    levels = np.unique(np.abs(omega))
-    if len(levels) > len(omega) // 10:  # a continuous signal: nearly every value distinct
-        return None
-    gaps = np.diff(levels)
-    gaps = gaps[gaps > 1e-5 * max(float(levels[-1]), 1e-12)]
-    if len(gaps) + 1 < MIN_LEVELS:
-        return None
-    step = float(np.min(gaps))
-    return step if on_grid(omega, step) else None
-
-
-def speed_step(omega: np.ndarray, fs: float, counts: float | None) -> float | None:
-    """The speed's count step s = q·fs: from the declared counts per revolution when ω is on that
-    grid, else read from ω when no count is declared; None when ω is not a count difference."""
-    if counts is not None:
-        step = 2 * math.pi / counts * fs
-        return step if on_grid(omega, step) else None
-    return read_step(omega)
 
 
 HARMONICS = 64  # sawtooth harmonics placed by the speed; the rest (1/64 of e's power) spread flat
@@ -136,8 +102,9 @@ def _step(prep: Prepared) -> float | None:
     d = prep.data
     if d.speed is None or d.units.axis != "rotary":
         return None
-    counts = d.meta.get("encoder_counts_per_rev")
-    return speed_step(d.speed, d.sample_rate_hz, float(counts) if counts is not None else None)
+    if STEP_KEY in d.meta:  # re-timed: the step was read on the samples as recorded
+        return float(d.meta[STEP_KEY])
+    return recorded_step(d.speed, d.sample_rate_hz, d.meta)
 
 
 def floor(prep: Prepared, keep: np.ndarray) -> Floor | None:
