@@ -119,7 +119,10 @@ class DriveLink:
         self._states = 0
         self._frame_tick = 0  # the runner's tick count when the last PWM frame was made
         self._pwm_due = False  # a state came in the batch being handled: answer it with a PWM frame
-        self._answering = True  # False once closing: PWM 0 is the last duty sent
+        # True from the handshake's heartbeat round trip (which arms the firmware) until closing
+        # (PWM 0 is then the last duty sent). The state frames stream from the MCU's boot: a PWM
+        # frame answering them before the first heartbeat was refused (no_heartbeat) at every start
+        self._answering = False
         self._pwm_lock = threading.Lock()
         self.clock_hz = 16_000_000
         self.sil: SilDevices | None = None  # SIL: the devices' process, running the virtual MCU
@@ -160,6 +163,8 @@ class DriveLink:
         except BaseException:
             self.link = None
             raise
+        with self._pwm_lock:  # the ping's answer came: the firmware is armed, PWM is taken
+            self._answering = True
         assert link.identity is not None
         reported = link.spec.boards.get(link.identity.board, f"unknown ({link.identity.board})")
         problem = m.board_problem(reported, sil=self.backend == "sil")
