@@ -16,11 +16,15 @@ Needs CAP_SYS_NICE (skipped without: the workers' priorities are the machine's).
 from __future__ import annotations
 
 import asyncio
+import json
 import os
+import signal
 import subprocess
 import sys
 import tty
 from collections.abc import Iterator
+from dataclasses import asdict
+from pathlib import Path
 
 import pytest
 import test_late_input as late
@@ -31,6 +35,7 @@ from tvsd.control.runner import Runner
 from tvsd.hw.mcu.link import McuLink
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import load_spec
+from tvsd.hw.mcu.tty_worker_state import FILE_PREFIX, Saved, StateFile, restore_stale, start_time
 from tvsd.hw.mcu.tty_workers import NICE, TtyWorkerBoost, unbound_workers
 
 
@@ -148,3 +153,121 @@ def test_with_the_workers_raised_an_mcu_that_stops_latches_stale(
 ) -> None:
     """The host's stale property, unchanged by the boost (the same test)."""
     late.test_silence_beyond_the_bound_latches_stale_and_the_link_is_lost(runner)
+
+
+# --- a daemon killed with the workers raised (tvsd.hw.mcu.tty_worker_state) -----------------------
+
+_KILLED_BOOST = (
+    "import sys, time\n"
+    "from pathlib import Path\n"
+    "from tvsd.hw.mcu.tty_workers import TtyWorkerBoost\n"
+    "b = TtyWorkerBoost(period_s=0.1, state_dir=Path(sys.argv[1]))\n"
+    "print(b.start(), flush=True)\n"
+    "time.sleep(120)\n"  # killed long before
+)
+
+
+def _killed_boost(state_dir: Path) -> dict[str, object]:
+    """A child that raises the workers, SIGKILLed while they are raised: its state file."""
+    child = subprocess.Popen(
+        [sys.executable, "-c", _KILLED_BOOST, str(state_dir)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert child.stdout is not None
+        status = child.stdout.readline()
+        assert status.startswith("granted"), status
+    finally:
+        child.send_signal(signal.SIGKILL)
+        child.wait(10)
+    files = list(state_dir.glob(f"{FILE_PREFIX}*.json"))
+    assert len(files) == 1, files
+    body: dict[str, object] = json.loads(files[0].read_text())
+    if not body["workers"]:
+        pytest.skip("every worker was already raised by another boost on this machine: nothing to undo")
+    return body
+
+
+def test_a_boost_killed_with_sigkill_is_undone_by_the_next_links_open(tmp_path: Path) -> None:
+    """The state file outlives the killed boost, its workers stay raised; the next McuLink that
+    opens with that state dir (no boost of its own: no --realtime) puts them back as they were and
+    removes the file. Before: no file, and the workers stayed at nice -20 until the kernel retired
+    them. (Another boost on the machine, e.g. a --realtime daemon, may raise them again later: the
+    check is right after the open.)"""
+    before = _classes()
+    body = _killed_boost(tmp_path)
+    recorded = {w["pid"]: w for w in body["workers"]}  # type: ignore[attr-defined]
+    still = _classes()
+    assert all(still[p][1] == NICE for p in recorded if p in still), still  # left raised by the kill
+    master, slave = os.openpty()
+    tty.setraw(slave)
+
+    async def open_close() -> None:
+        link = McuLink(McuSettings(port=os.ttyname(slave)), load_spec(), state_dir=tmp_path)
+        await link.open()
+        await link.close()
+
+    try:
+        asyncio.run(open_close())
+    finally:
+        os.close(slave)
+        os.close(master)
+    after = _classes()
+    back = {p: (w["policy"], w["nice"]) for p, w in recorded.items() if p in after and p in before}
+    assert back and all(after[p] == cls for p, cls in back.items()), (back, after)
+    assert not list(tmp_path.glob(f"{FILE_PREFIX}*")), "the file is removed once undone"
+
+
+def test_a_recycled_worker_pid_is_not_touched(tmp_path: Path) -> None:
+    """A record whose pid now names another process (another start time: the pool retired the
+    worker and the pid was reused) leaves that process alone; the dead owner's file goes."""
+    victim = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        pid = victim.pid
+        os.setpriority(os.PRIO_PROCESS, pid, NICE)  # as if the boost had raised it
+        real = start_time(pid)
+        assert real is not None
+        code = "import os; print(os.getpid())"
+        gone = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+        owner = int(gone.stdout)  # a process that has ended: the owner was killed
+        stale = Saved(pid, real - 1, os.SCHED_OTHER, 0, 0)  # recorded when pid was another process
+        (tmp_path / f"{FILE_PREFIX}{owner}-0.json").write_text(
+            json.dumps(
+                {
+                    "owner": owner,
+                    "owner_start": 1,
+                    "given": [os.SCHED_OTHER, 0, NICE],
+                    "workers": [asdict(stale)],
+                }
+            )
+        )
+        lines = restore_stale(tmp_path)
+        assert lines == [f"{FILE_PREFIX}{owner}-0.json (pid {owner}, gone): 0 of 1 workers put back"]
+        assert os.getpriority(os.PRIO_PROCESS, pid) == NICE  # untouched
+        assert not list(tmp_path.glob(f"{FILE_PREFIX}*"))
+        # the same record with the right start time is put back: the check above is the start time
+        StateFile(tmp_path, (os.SCHED_OTHER, 0, NICE)).write({pid: Saved(pid, real, os.SCHED_OTHER, 0, 0)})
+        assert restore_stale(tmp_path) == []  # its owner (this process) lives: left alone
+        assert os.getpriority(os.PRIO_PROCESS, pid) == NICE
+    finally:
+        victim.kill()
+        victim.wait()
+        for f in tmp_path.glob(f"{FILE_PREFIX}*"):
+            f.unlink()
+
+
+def test_a_live_boost_keeps_its_record_and_removes_it_at_stop(tmp_path: Path) -> None:
+    """While running the file lists what was changed, with each worker's original settings; at
+    stop the workers are back and the file is gone."""
+    before = _classes()
+    b = TtyWorkerBoost(period_s=0.1, state_dir=tmp_path)
+    try:
+        assert b.start().startswith("granted"), b.status
+        assert b.state is not None
+        if b.changed:
+            body = json.loads(b.state.path.read_text())
+            assert {w["pid"] for w in body["workers"]} == b.changed
+            was = [((w["policy"], w["nice"]), before.get(w["pid"])) for w in body["workers"]]
+            assert all(b is None or a == b for a, b in was), was
+    finally:
+        b.stop()
+    assert not list(tmp_path.glob(f"{FILE_PREFIX}*"))

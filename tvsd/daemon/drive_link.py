@@ -40,6 +40,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -86,11 +87,13 @@ class DriveLink:
         on_pulse: Callable[[PulseEvent], None],
         on_link: Callable[[bool], None],
         on_fault: Callable[[FaultEvent], None],
+        state_dir: Path | None = None,
     ) -> None:
         if backend not in ("hardware", "sil"):
             raise ConfigError(f"devices.mcu: {backend!r} is not a backend; use hardware or sil")
         self.cfg, self.runner, self.backend = cfg, runner, backend
         self.on_pulse, self.on_link, self.on_fault = on_pulse, on_link, on_fault
+        self.state_dir = state_dir  # runtime state (the socket's dir): the tty workers' record
         m = cfg.mcu
         if backend == "sil":
             sil_counts = cfg.sil_or_default.measurement.encoder_counts_per_rev
@@ -156,6 +159,7 @@ class DriveLink:
             # (getattr: a board check in the tests runs without a runner)
             io_priority=IO_THREAD_PRIORITY if getattr(self.runner, "realtime", False) else None,
             shared_tx=getattr(self.runner, "tx", None),  # the kernel writes the heartbeats
+            state_dir=self.state_dir,
         )
         self.link = link  # state frames may come during the handshake
         try:
