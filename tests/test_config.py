@@ -383,3 +383,15 @@ def test_the_tty_worker_mode_is_a_checked_mcu_key(tmp_path, capsys):
     assert want in lines[0], lines
     path.write_text(_shipped_text().replace("  tty_workers: nice ", "  tty_workers: off "))
     assert load_config(path).mcu.tty_workers == "off"  # YAML 1.1's false, meant as the choice
+
+
+def test_a_bare_off_is_the_choice_off_wherever_off_is_one(tmp_path):
+    """YAML 1.1 reads a bare `off` as false: `devices.imu: off` (and sil.yaml's documented
+    `vibration.model: off`) were refused as "expected text, got False" before branch ttyrestore."""
+    path = tmp_path / "tvsd.yaml"
+    path.write_text(_shipped_text().replace("  imu: hardware ", "  imu: off "))
+    sil = (config_dir() / "sil.yaml").read_text()
+    (tmp_path / "sil.yaml").write_text(sil.replace("model: sde", "model: off"))
+    cfg = load_config(path)
+    assert cfg.devices.imu == "off"
+    assert cfg.sil_or_default.vibration.model == "off"
