@@ -182,6 +182,8 @@ class McuLink:
         self._io.stop()
         if self._tty_workers is not None:
             self._tty_workers.stop()
+        if self._state_dir is not None:  # a daemon killed while this one ran: it kept them raised
+            await asyncio.to_thread(restore_stale, self._state_dir)
         if self._serial is not None:
             self._serial.close()
             self._serial = None
