@@ -25,7 +25,7 @@ import subprocess
 import sys
 import tty
 from collections.abc import Iterator
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import pytest
@@ -37,7 +37,7 @@ from tvsd.control.runner import Runner
 from tvsd.hw.mcu.link import McuLink
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import load_spec
-from tvsd.hw.mcu.tty_worker_state import FILE_PREFIX, Saved, StateFile, restore_stale, start_time
+from tvsd.hw.mcu.tty_worker_state import FILE_PREFIX, Saved, boot_id, restore_stale, start_time
 from tvsd.hw.mcu.tty_workers import NICE, TtyWorkerBoost, unbound_workers
 
 
@@ -240,9 +240,19 @@ def test_a_boost_killed_with_sigkill_is_undone_by_the_next_links_open(
     assert not list(tmp_path.glob(f"{FILE_PREFIX}*")), "the file is removed once undone"
 
 
+def _record(folder: Path, owner: int, owner_start: int | None, saved: Saved, boot: str) -> str:
+    """A record as a boost writes it (tvsd.hw.mcu.tty_worker_state.StateFile); its file name."""
+    name = f"{FILE_PREFIX}{owner}-0.json"
+    body = {"boot": boot, "owner": owner, "owner_start": owner_start, "given": [os.SCHED_OTHER, 0, NICE]}
+    (folder / name).write_text(json.dumps({**body, "workers": [asdict(saved)]}))
+    return name
+
+
 def test_a_recycled_worker_pid_is_not_touched(tmp_path: Path) -> None:
     """A record whose pid now names another process (another start time: the pool retired the
-    worker and the pid was reused) leaves that process alone; the dead owner's file goes."""
+    worker and the pid was reused) leaves that process alone, and so does a record from another
+    boot or one whose owner lives; with the right start time and a dead owner it is put back. The
+    'worker' is a child process at nice -20 (as the boost leaves one)."""
     victim = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
         pid = victim.pid
@@ -252,30 +262,29 @@ def test_a_recycled_worker_pid_is_not_touched(tmp_path: Path) -> None:
         code = "import os; print(os.getpid())"
         gone = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
         owner = int(gone.stdout)  # a process that has ended: the owner was killed
-        stale = Saved(pid, real - 1, os.SCHED_OTHER, 0, 0)  # recorded when pid was another process
-        (tmp_path / f"{FILE_PREFIX}{owner}-0.json").write_text(
-            json.dumps(
-                {
-                    "owner": owner,
-                    "owner_start": 1,
-                    "given": [os.SCHED_OTHER, 0, NICE],
-                    "workers": [asdict(stale)],
-                }
-            )
-        )
-        lines = restore_stale(tmp_path)
-        assert lines == [f"{FILE_PREFIX}{owner}-0.json (pid {owner}, gone): 0 of 1 workers put back"]
+        boot = boot_id()
+        was = Saved(pid, real, os.SCHED_OTHER, 0, 0)
+
+        name = _record(tmp_path, owner, 1, replace(was, start=real - 1), boot)  # pid recycled since
+        assert restore_stale(tmp_path) == [f"{name} (pid {owner}, gone): 0 of 1 workers put back"]
         assert os.getpriority(os.PRIO_PROCESS, pid) == NICE  # untouched
-        assert not list(tmp_path.glob(f"{FILE_PREFIX}*"))
-        # the same record with the right start time is put back: the check above is the start time
-        StateFile(tmp_path, (os.SCHED_OTHER, 0, NICE)).write({pid: Saved(pid, real, os.SCHED_OTHER, 0, 0)})
-        assert restore_stale(tmp_path) == []  # its owner (this process) lives: left alone
+        assert not list(tmp_path.glob(f"{FILE_PREFIX}*"))  # the dead owner's file goes
+
+        name = _record(tmp_path, owner, 1, was, "another-boot")
+        assert restore_stale(tmp_path) == [f"{name}: from another boot, removed"]
         assert os.getpriority(os.PRIO_PROCESS, pid) == NICE
+
+        _record(tmp_path, os.getpid(), start_time(os.getpid()), was, boot)  # its owner lives
+        assert restore_stale(tmp_path) == []
+        assert os.getpriority(os.PRIO_PROCESS, pid) == NICE
+        (tmp_path / f"{FILE_PREFIX}{os.getpid()}-0.json").unlink()
+
+        name = _record(tmp_path, owner, 1, was, boot)  # the same process, its owner gone
+        assert restore_stale(tmp_path) == [f"{name} (pid {owner}, gone): 1 of 1 workers put back"]
+        assert os.getpriority(os.PRIO_PROCESS, pid) == 0  # the check above was the start time
     finally:
         victim.kill()
         victim.wait()
-        for f in tmp_path.glob(f"{FILE_PREFIX}*"):
-            f.unlink()
 
 
 def test_a_live_boost_keeps_its_record_and_removes_it_at_stop(tmp_path: Path) -> None:

@@ -172,7 +172,7 @@ class McuLink:
         self._rx.attach(self._loop)
         self._serial = open_serial(self.settings.port, self.settings.baud)
         if self._state_dir is not None:  # an earlier daemon's, killed before it put them back
-            await asyncio.to_thread(restore_stale, self._state_dir)
+            restore_stale(self._state_dir)  # (a few small files on a tmpfs and /proc: µs)
         if self._tty_workers is not None:
             self._tty_workers.start()
         self._io.start(self._serial.fileno())
@@ -183,7 +183,7 @@ class McuLink:
         if self._tty_workers is not None:
             self._tty_workers.stop()
         if self._state_dir is not None:  # a daemon killed while this one ran: it kept them raised
-            await asyncio.to_thread(restore_stale, self._state_dir)
+            restore_stale(self._state_dir)  # (not awaited: close may run while being cancelled)
         if self._serial is not None:
             self._serial.close()
             self._serial = None

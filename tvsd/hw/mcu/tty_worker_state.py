@@ -4,10 +4,11 @@ A daemon killed with SIGKILL (or crashing) cannot put back the kernel's workers 
 (tvsd.hw.mcu.tty_workers): after one test run every `kworker/u8:*` was still at nice -20 and
 nobody knew which process had done it (docs/measurements/siltiming.md). So each boost writes what
 it changed, before changing it, to `tty-workers-<pid>-<n>.json` in the daemon's runtime directory
-(the socket's: /run/tvsd under systemd, cleared at boot like the priorities themselves): its own
-pid and start time, the mode, and per worker its pid, start time and original policy, real-time
-priority and nice. The next link to open (`restore_stale`) puts back the workers of every file
-whose owner is gone, and removes the file; the owner removes its own at close.
+(the socket's: /run/tvsd under systemd, kept across its restarts by RuntimeDirectoryPreserve=):
+the boot's id, its own pid and start time, what it gives, and per worker its pid, start time and
+original policy, real-time priority and nice. The next link to open or close (`restore_stale`)
+puts back the workers of every file whose owner is gone, and removes the file; the owner removes
+its own at close.
 
 A pid alone is not a process: the kernel retires idle workers and reuses their pids. Each worker
 and owner is therefore named by (pid, start time) (/proc/PID/stat field 22, clock ticks since
@@ -31,6 +32,14 @@ NICE_POLICIES = (os.SCHED_OTHER, os.SCHED_BATCH, os.SCHED_IDLE)  # the ones nice
 _serial = itertools.count()  # two boosts in one process (tests) keep two files
 
 log = logging.getLogger(__name__)
+
+
+def boot_id(proc: Path = PROC) -> str:
+    """This boot's id: a record from another boot names processes that no longer exist."""
+    try:
+        return (proc / "sys/kernel/random/boot_id").read_text().strip()
+    except OSError:
+        return ""
 
 
 def start_time(pid: int, proc: Path = PROC) -> int | None:
@@ -90,6 +99,7 @@ class StateFile:
 
     def write(self, saved: dict[int, Saved]) -> None:
         body = {
+            "boot": boot_id(self.proc),
             "owner": os.getpid(),
             "owner_start": start_time(os.getpid(), self.proc),
             "given": list(self.given),
@@ -117,6 +127,11 @@ def restore_stale(directory: Path, proc: Path = PROC) -> list[str]:
             workers = [Saved(**w) for w in body["workers"]]
         except (OSError, ValueError, KeyError, TypeError) as exc:
             done.append(f"{path.name}: unreadable ({exc}), removed")
+            with contextlib.suppress(OSError):
+                path.unlink()
+            continue
+        if body.get("boot") != boot_id(proc):  # (early kthreads' pids and start times repeat)
+            done.append(f"{path.name}: from another boot, removed")
             with contextlib.suppress(OSError):
                 path.unlink()
             continue
