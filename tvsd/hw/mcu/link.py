@@ -170,9 +170,9 @@ class McuLink:
         warm_up_clock_fit()  # while no heartbeat is due: the first fit costs tens of ms
         self._loop = asyncio.get_running_loop()
         self._rx.attach(self._loop)
-        self._serial = open_serial(self.settings.port, self.settings.baud)
         if self._state_dir is not None:  # an earlier daemon's, killed before it put them back
             restore_stale(self._state_dir)  # (a few small files on a tmpfs and /proc: µs)
+        self._serial = open_serial(self.settings.port, self.settings.baud)
         if self._tty_workers is not None:
             self._tty_workers.start()
         self._io.start(self._serial.fileno())
