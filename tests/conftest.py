@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import inspect
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any, TypeVar
 
 from hypothesis import settings
@@ -108,6 +108,18 @@ def _virtual_mcu_library() -> None:
     incremental). tvsd itself never compiles it: a checkout uses this build, a wheel its own."""
     if shutil.which("make") and (_FIRMWARE / "Makefile").is_file():
         subprocess.run(["make", "-s", "-C", str(_FIRMWARE), "host-lib"], check=False, capture_output=True)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _tty_workers_put_back(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """A --realtime daemon that a test killed (SIGKILL) leaves the kernel's tty workers raised and
+    its record beside its socket (tvsd.hw.mcu.tty_worker_state), in this session's tmp dirs, where
+    no later daemon looks: put those back at the session's end."""
+    yield
+    from tvsd.hw.mcu.tty_worker_state import FILE_PREFIX, restore_stale
+
+    for folder in {p.parent for p in tmp_path_factory.getbasetemp().rglob(f"{FILE_PREFIX}*.json")}:
+        restore_stale(folder)
 
 
 def replace_section(text: str, name: str, body: str) -> str:

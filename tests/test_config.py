@@ -365,3 +365,33 @@ def test_a_sil_profile_that_is_a_directory_is_not_called_missing(tmp_path, capsy
     path.write_text(_shipped_text().replace("sil_profile: sil.yaml", "sil_profile: profiles"))
     status, lines = _check(path, capsys)
     assert status == 2 and len(lines) == 1 and "sil_profile: not a regular file" in lines[0], lines
+
+
+def test_the_tty_worker_mode_is_a_checked_mcu_key(tmp_path, capsys):
+    """`mcu.tty_workers` (branch ttyrestore): nice by default (the shipped file says so), a bad
+    value is one line with file:line naming the choices, exit 2. Before, only $TVSD_TTY_WORKERS
+    chose it, and a typo there silently meant nice."""
+    assert load_config().mcu.tty_workers == "nice"
+    text = _shipped_text().replace("  tty_workers: nice ", "  tty_workers: fast ")
+    assert text != _shipped_text()
+    path = _write(tmp_path, None)
+    path.write_text(text)
+    line = next(n for n, ln in enumerate(text.splitlines(), 1) if ln.startswith("  tty_workers: fast"))
+    status, lines = _check(path, capsys)
+    assert status == 2 and len(lines) == 1, lines
+    want = f"tvsd.yaml:{line}: mcu.tty_workers: expected one of nice, fifo, off, got 'fast'"
+    assert want in lines[0], lines
+    path.write_text(_shipped_text().replace("  tty_workers: nice ", "  tty_workers: off "))
+    assert load_config(path).mcu.tty_workers == "off"  # YAML 1.1's false, meant as the choice
+
+
+def test_a_bare_off_is_the_choice_off_wherever_off_is_one(tmp_path):
+    """YAML 1.1 reads a bare `off` as false: `devices.imu: off` (and sil.yaml's documented
+    `vibration.model: off`) were refused as "expected text, got False" before branch ttyrestore."""
+    path = tmp_path / "tvsd.yaml"
+    path.write_text(_shipped_text().replace("  imu: hardware ", "  imu: off "))
+    sil = (config_dir() / "sil.yaml").read_text()
+    (tmp_path / "sil.yaml").write_text(sil.replace("model: sde", "model: off"))
+    cfg = load_config(path)
+    assert cfg.devices.imu == "off"
+    assert cfg.sil_or_default.vibration.model == "off"

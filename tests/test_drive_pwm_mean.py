@@ -55,6 +55,7 @@ def _sent_volts(commands: list[float], last_frame_tick: int) -> float:
     drive = DriveLink(cfg, _Runner(commands), "hardware", on_pulse=print, on_link=print, on_fault=print)  # type: ignore[arg-type]
     link = _Link()
     drive.link = link  # type: ignore[assignment]
+    drive._answering = True  # as after start's heartbeat round trip (the firmware armed)
     drive._frame_tick = last_frame_tick
     drive._pwm_due = True  # a state frame came in the batch
     drive._send_pwm()
@@ -93,6 +94,7 @@ def test_the_frames_sent_are_recorded_on_the_loops_clock(tmp_path) -> None:
     runner = _Runner([3.0] * 10)
     drive = DriveLink(cfg, runner, "hardware", on_pulse=print, on_link=print, on_fault=print)  # type: ignore[arg-type]
     drive.link = _Link()  # type: ignore[assignment]
+    drive._answering = True  # as after start's heartbeat round trip (the firmware armed)
 
     def frame() -> None:
         drive._pwm_due = True

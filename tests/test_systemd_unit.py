@@ -83,6 +83,7 @@ def test_key_settings():
         "Service.User": ["tvsd"],
         "Service.SupplementaryGroups": ["i2c dialout"],
         "Service.RuntimeDirectory": ["tvsd"],
+        "Service.RuntimeDirectoryPreserve": ["restart"],  # the tty workers' record survives a restart
         "Service.StateDirectory": ["tvsd"],
         "Service.LimitMEMLOCK": ["infinity"],
         "Service.DevicePolicy": ["closed"],

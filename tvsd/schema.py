@@ -243,9 +243,11 @@ def convert(tp: Any, value: Any, where: Where, meta: typing.Mapping[str, Any]) -
             raise where.error(f"expected a file path, got {_shown_any(value)}")
         return Path(value)
     if tp is str:
+        choices = meta.get("choices")
+        if value is False and choices and "off" in choices:
+            value = "off"  # YAML 1.1 reads a bare `off` (or no, false) as false: the choice meant
         if not isinstance(value, str):
             raise where.error(f"expected text, got {_shown_any(value)}")
-        choices = meta.get("choices")
         if choices and value not in choices:
             raise where.error(f"expected one of {', '.join(choices)}, got {_shown_any(value)}")
         return value

@@ -88,6 +88,9 @@ class Daemon(DeviceEvents):
             on_pulse=self._on_pulse,
             on_link=self._on_link,
             on_fault=self._on_mcu_fault,
+            # runtime state beside the socket (/run/tvsd): what the link did to the kernel's tty
+            # workers, undone by the next start if this daemon is killed (tvsd.hw.mcu.tty_worker_state)
+            state_dir=socket_path.parent,
         )
         self.imu: Any = None  # tvsd.daemon.imu_service.ImuService once started
         self.sil: Any = None  # tvsd.sim.sil_devices.SilDevices while any device is sil

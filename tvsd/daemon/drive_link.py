@@ -40,6 +40,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -86,11 +87,13 @@ class DriveLink:
         on_pulse: Callable[[PulseEvent], None],
         on_link: Callable[[bool], None],
         on_fault: Callable[[FaultEvent], None],
+        state_dir: Path | None = None,
     ) -> None:
         if backend not in ("hardware", "sil"):
             raise ConfigError(f"devices.mcu: {backend!r} is not a backend; use hardware or sil")
         self.cfg, self.runner, self.backend = cfg, runner, backend
         self.on_pulse, self.on_link, self.on_fault = on_pulse, on_link, on_fault
+        self.state_dir = state_dir  # runtime state (the socket's dir): the tty workers' record
         m = cfg.mcu
         if backend == "sil":
             sil_counts = cfg.sil_or_default.measurement.encoder_counts_per_rev
@@ -119,7 +122,10 @@ class DriveLink:
         self._states = 0
         self._frame_tick = 0  # the runner's tick count when the last PWM frame was made
         self._pwm_due = False  # a state came in the batch being handled: answer it with a PWM frame
-        self._answering = True  # False once closing: PWM 0 is the last duty sent
+        # True from the handshake's heartbeat round trip (which arms the firmware) until closing
+        # (PWM 0 is then the last duty sent). The state frames stream from the MCU's boot: a PWM
+        # frame answering them before the first heartbeat was refused (no_heartbeat) at every start
+        self._answering = False
         self._pwm_lock = threading.Lock()
         self.clock_hz = 16_000_000
         self.sil: SilDevices | None = None  # SIL: the devices' process, running the virtual MCU
@@ -153,6 +159,7 @@ class DriveLink:
             # (getattr: a board check in the tests runs without a runner)
             io_priority=IO_THREAD_PRIORITY if getattr(self.runner, "realtime", False) else None,
             shared_tx=getattr(self.runner, "tx", None),  # the kernel writes the heartbeats
+            state_dir=self.state_dir,
         )
         self.link = link  # state frames may come during the handshake
         try:
@@ -160,6 +167,8 @@ class DriveLink:
         except BaseException:
             self.link = None
             raise
+        with self._pwm_lock:  # the ping's answer came: the firmware is armed, PWM is taken
+            self._answering = True
         assert link.identity is not None
         reported = link.spec.boards.get(link.identity.board, f"unknown ({link.identity.board})")
         problem = m.board_problem(reported, sil=self.backend == "sil")

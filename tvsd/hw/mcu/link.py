@@ -19,6 +19,7 @@ import statistics
 import struct
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import serial
@@ -43,6 +44,7 @@ from tvsd.hw.mcu.receiving import Receiver
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.shared_tx import SharedTx
 from tvsd.hw.mcu.spec import ProtocolSpec, load_spec
+from tvsd.hw.mcu.tty_worker_state import restore_stale
 from tvsd.hw.mcu.tty_workers import TtyWorkerBoost, mode_from_env
 
 __all__ = [
@@ -71,6 +73,8 @@ class _ReceiverCallback:
         setattr(link._rx, self.name, value)
 
 
+# what a link without its tty workers raised risks, for the status (siltiming.md)
+TTY_RISK = "under CPU load the MCU's bytes may wait behind other programs (faults mcu_stale, mcu_watchdog)"
 HB_FORGET_S = 2.0  # a heartbeat unanswered this long will never be (40 heartbeats at 50 ms)
 
 
@@ -106,6 +110,7 @@ class McuLink:
         liveness: Callable[[], int] | None = None,
         io_priority: int | None = None,
         shared_tx: SharedTx | None = None,
+        state_dir: Path | None = None,
     ) -> None:
         self.settings = settings
         self.spec = spec or load_spec(settings.spec_path)
@@ -142,9 +147,12 @@ class McuLink:
             on_refused=on_refused,
         )
         # --realtime: the kernel's tty workers too, which hand every received byte to the reader
-        # (tvsd.hw.mcu.tty_workers: preempted, they held the MCU's frames up to 1.2 s)
-        tty_mode = mode_from_env() if io_priority is not None else "off"
-        self._tty_workers = TtyWorkerBoost(tty_mode) if tty_mode != "off" else None
+        # (tvsd.hw.mcu.tty_workers: preempted, they held the MCU's frames up to 1.2 s); what it
+        # changes is kept in `state_dir` (the daemon's runtime dir) for a daemon killed meanwhile
+        self._state_dir = state_dir
+        self._tty_mode = mode_from_env(settings.tty_workers) if io_priority is not None else None
+        mode = self._tty_mode
+        self._tty_workers = TtyWorkerBoost(mode, state_dir=state_dir) if mode not in (None, "off") else None
 
     # the receiver's handlers, looked up at call time (a test may stand in for one)
     def _frames(self, frames: list[Frame], now: float) -> None:
@@ -162,6 +170,8 @@ class McuLink:
         warm_up_clock_fit()  # while no heartbeat is due: the first fit costs tens of ms
         self._loop = asyncio.get_running_loop()
         self._rx.attach(self._loop)
+        if self._state_dir is not None:  # an earlier daemon's, killed before it put them back
+            restore_stale(self._state_dir)  # (a few small files on a tmpfs and /proc: µs)
         self._serial = open_serial(self.settings.port, self.settings.baud)
         if self._tty_workers is not None:
             self._tty_workers.start()
@@ -172,6 +182,8 @@ class McuLink:
         self._io.stop()
         if self._tty_workers is not None:
             self._tty_workers.stop()
+        if self._state_dir is not None:  # a daemon killed while this one ran: it kept them raised
+            restore_stale(self._state_dir)  # (not awaited: close may run while being cancelled)
         if self._serial is not None:
             self._serial.close()
             self._serial = None
@@ -362,8 +374,14 @@ class McuLink:
 
     @property
     def tty_workers(self) -> str:
-        """What raising the kernel's tty workers got (tvsd.hw.mcu.tty_workers; --realtime only)."""
-        return self._tty_workers.status if self._tty_workers is not None else "not requested"
+        """What raising the kernel's tty workers got (tvsd.hw.mcu.tty_workers; --realtime only).
+        Refused or off under --realtime, it says what that risks (`tvsctl status` shows it)."""
+        if self._tty_mode is None:
+            return "not requested"
+        if self._tty_workers is None:
+            return f"off (mcu.tty_workers): {TTY_RISK}"
+        status = self._tty_workers.status
+        return f"{status}: {TTY_RISK}" if status.startswith("refused") else status
 
     @property
     def steppers(self) -> dict[int, StepperState]:

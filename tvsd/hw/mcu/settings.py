@@ -22,6 +22,7 @@ from pathlib import Path
 
 from tvsd.hw.mcu.clock import ClockSettings
 from tvsd.hw.mcu.spec import FRAME_OVERHEAD
+from tvsd.hw.mcu.tty_workers import MODES as TTY_WORKER_MODES
 from tvsd.schema import FieldError, check, option
 
 HEARTBEATS_PER_WATCHDOG = 4
@@ -70,6 +71,12 @@ class McuSettings:
         doc="output pending beyond what the driver took (~20 ms at 2 Mbaud); a frame must fit",
         unit="B",
         ge=FRAME_OVERHEAD + 32,
+    )
+    tty_workers: str = option(
+        "nice",
+        doc="under --realtime, the kernel's tty workers (kworker/u*, which hand the MCU's bytes to the "
+        "link) while the link is open: nice -20, SCHED_FIFO 1, or off (tvsd/hw/mcu/tty_workers.py)",
+        choices=TTY_WORKER_MODES,
     )
     rtt_history: int = option(256, doc="heartbeat round trips kept for the status's RTT", ge=1)
     clock: ClockSettings = option(ClockSettings(), doc="the MCU clock's fit (tvsd/hw/mcu/clock.py)")

@@ -19,28 +19,35 @@ demand, at normal priority); at `stop()` it puts back the ones it changed. Two w
 - "fifo": SCHED_FIFO FIFO_PRIORITY (1, below every tvsd thread); its time counts as real-time.
 Both took the pty's worst delay in the soak from 255-994 ms to 4-75 ms (no cut at the wire
 model's allowance, no mcu_stale).
-$TVSD_TTY_WORKERS picks one, or "off". They serve other unbound work too (each item short).
-Needs CAP_SYS_NICE (what --realtime needs); refused, it says so and the daemon runs on.
+`mcu.tty_workers` in the config picks one, or "off" ($TVSD_TTY_WORKERS overrides it, a
+measuring knob). They serve other unbound work too (each item short). Needs CAP_SYS_NICE (what
+--realtime needs); refused, it says so and the daemon runs on. What it changed is kept in a state
+file beside the daemon's socket (tvsd.hw.mcu.tty_worker_state), so that a daemon killed with
+SIGKILL is undone by the next one.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import threading
 from pathlib import Path
+
+from tvsd.hw.mcu.tty_worker_state import PROC, Saved, StateFile, start_time
 
 MODES = ("nice", "fifo", "off")
 NICE = -20
 FIFO_PRIORITY = 1  # the lowest real-time priority, below the daemon's (40-80) and the SIL's (30-46)
 PERIOD_S = 1.0
-ENV_MODE = "TVSD_TTY_WORKERS"  # a measuring knob, as TVSD_MLOCK: nice (default), fifo or off
+ENV_MODE = "TVSD_TTY_WORKERS"  # a measuring knob, as TVSD_MLOCK: overrides mcu.tty_workers
 UNBOUND_PREFIX = "kworker/u"
-PROC = Path("/proc")
+
+log = logging.getLogger(__name__)
 
 
 def mode_from_env(default: str = "nice") -> str:
-    """$TVSD_TTY_WORKERS if it names a mode, else `default`."""
+    """$TVSD_TTY_WORKERS if it names a mode, else `default` (the config's mcu.tty_workers)."""
     raw = os.environ.get(ENV_MODE, "").strip()
     return raw if raw in MODES else default
 
@@ -58,49 +65,107 @@ def unbound_workers(proc: Path = PROC) -> list[int]:
 
 
 class TtyWorkerBoost:
-    """The unbound kworkers raised (`mode` "nice" or "fifo") while running (see the module)."""
+    """The unbound kworkers raised (`mode` "nice" or "fifo") while running (see the module).
 
-    def __init__(self, mode: str = "nice", period_s: float = PERIOD_S, proc: Path = PROC) -> None:
+    `state_dir`: where what it changed is kept (tvsd.hw.mcu.tty_worker_state), so that a daemon
+    killed before `stop()` is undone at the next start; None keeps it in memory only."""
+
+    def __init__(
+        self, mode: str = "nice", period_s: float = PERIOD_S, proc: Path = PROC, state_dir: Path | None = None
+    ) -> None:
         if mode not in ("nice", "fifo"):
             raise ValueError(f"tty worker boost {mode!r}: nice or fifo")
         self.mode, self.period_s, self.proc = mode, period_s, proc
-        self.changed: set[int] = set()
+        # what it gives a worker: (policy, real-time priority, nice)
+        self.given = (os.SCHED_OTHER, 0, NICE) if mode == "nice" else (os.SCHED_FIFO, FIFO_PRIORITY, 0)
+        self.saved: dict[int, Saved] = {}  # the workers it changed, as they were
+        self.state = StateFile(state_dir, self.given, proc) if state_dir is not None else None
         self.status = "not started"
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()  # apply (its thread) against stop (the event loop)
 
-    def _raise(self, pid: int) -> bool:
-        """Raise one worker if it is still at normal priority; whether it was changed."""
+    @property
+    def changed(self) -> set[int]:
+        return set(self.saved)
+
+    def _due(self, pid: int) -> bool:
+        """Whether a worker is still at normal priority (the pool's new ones are)."""
         if os.sched_getscheduler(pid) != os.SCHED_OTHER:
             return False
+        return self.mode == "fifo" or os.getpriority(os.PRIO_PROCESS, pid) > NICE
+
+    def _give(self, pid: int) -> None:
         if self.mode == "fifo":
             os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(FIFO_PRIORITY))
-            return True
-        if os.getpriority(os.PRIO_PROCESS, pid) <= NICE:
-            return False
-        os.setpriority(os.PRIO_PROCESS, pid, NICE)
-        return True
+        else:
+            os.setpriority(os.PRIO_PROCESS, pid, NICE)
 
     def apply(self) -> int:
-        """One pass: the workers still at normal priority raised; how many. Sets `status`."""
-        raised = 0
-        for pid in unbound_workers(self.proc):
-            try:
-                if not self._raise(pid):
+        """One pass: the workers still at normal priority raised; how many. Sets `status`.
+        Each is recorded (state file) before it is changed: a kill in between leaves a record of
+        a worker not raised, which `put_back` then leaves alone."""
+        with self._lock:
+            if self._stop.is_set():
+                return 0
+            due = []
+            for pid in unbound_workers(self.proc):
+                with contextlib.suppress(ProcessLookupError):  # the pool retired it meanwhile
+                    if self._due(pid) and (saved := Saved.of(pid, self.proc)) is not None:
+                        due.append(saved)
+            # forget the retired (a pid the pool reuses is a new worker, recorded anew)
+            self.saved = {p: s for p, s in self.saved.items() if start_time(p, self.proc) == s.start}
+            raised = 0
+            if due:
+                self.saved.update({s.pid: s for s in due})
+                self._write()
+            for s in due:
+                try:
+                    self._give(s.pid)
+                except ProcessLookupError:
+                    self.saved.pop(s.pid, None)
                     continue
-            except ProcessLookupError:  # the pool retired it meanwhile
+                except PermissionError as exc:
+                    for rest in due[raised:]:
+                        self.saved.pop(rest.pid, None)
+                    self._write()
+                    self.status = f"refused: {exc.strerror or exc} (needs CAP_SYS_NICE)"
+                    return raised
+                raised += 1
+            how = f"nice {NICE}" if self.mode == "nice" else f"SCHED_FIFO {FIFO_PRIORITY}"
+            self.status = f"granted ({how}, {len(self.saved)} workers)"
+            return raised
+
+    def _write(self) -> None:
+        if self.state is None:
+            return
+        try:
+            if self.saved:
+                self.state.write(self.saved)
+            else:
+                self.state.remove()
+        except OSError as exc:  # a read-only or full runtime dir: the boost still works
+            log.warning("tty workers: cannot keep %s (%s): a kill leaves them raised", self.state.path, exc)
+
+    def _permitted(self) -> str | None:
+        """None if this process may change the workers, else the refusal (asked even when every
+        worker is raised already, by another daemon: this one could not keep them so)."""
+        for pid in unbound_workers(self.proc):
+            try:  # a change to what it has: a no-op, but checked for permission all the same
+                os.sched_setscheduler(pid, os.sched_getscheduler(pid), os.sched_getparam(pid))
+            except ProcessLookupError:
                 continue
             except PermissionError as exc:
-                self.status = f"refused: {exc.strerror or exc} (needs CAP_SYS_NICE)"
-                return raised
-            self.changed.add(pid)
-            raised += 1
-        how = f"nice {NICE}" if self.mode == "nice" else f"SCHED_FIFO {FIFO_PRIORITY}"
-        self.status = f"granted ({how}, {len(self.changed)} workers)"
-        return raised
+                return f"refused: {exc.strerror or exc} (needs CAP_SYS_NICE)"
+            return None
+        return None
 
     def start(self) -> str:
         """The first pass now (its status returned), then one every period_s on a thread."""
+        refused = self._permitted()
+        if refused is not None:
+            self.status = refused
+            return refused
         self.apply()
         if self.status.startswith("refused"):
             return self.status
@@ -113,14 +178,17 @@ class TtyWorkerBoost:
             self.apply()
 
     def stop(self) -> None:
-        """Stop re-checking; the workers it raised back to SCHED_OTHER, nice 0 (idempotent)."""
+        """Stop re-checking; the workers it raised back as they were (those still the same
+        process with what it gave them), its state file removed (idempotent)."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
-        for pid in self.changed:
-            with contextlib.suppress(OSError):
-                if self.mode == "fifo" and os.sched_getscheduler(pid) == os.SCHED_FIFO:
-                    os.sched_setscheduler(pid, os.SCHED_OTHER, os.sched_param(0))
-                elif self.mode == "nice" and os.getpriority(os.PRIO_PROCESS, pid) == NICE:
-                    os.setpriority(os.PRIO_PROCESS, pid, 0)
-        self.changed.clear()
+        with self._lock:
+            kept = {}
+            for pid, s in self.saved.items():
+                try:
+                    s.put_back(self.given, self.proc)
+                except PermissionError:  # privileges dropped since: the next start tries
+                    kept[pid] = s
+            self.saved = kept
+            self._write()
