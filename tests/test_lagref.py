@@ -73,6 +73,9 @@ def test_a_late_speed_column_is_not_a_delay(tmp_path: Path, capsys: pytest.Captu
         _late_speed(null, late, samples)
         got = _analyze(late, capsys)
         assert got["cause"] != "delay", got["effect"]
+        # the move is said, in the JSON and in the sentence (review: it was silent)
+        assert [w["code"] for w in got.get("warnings", [])].count("omega_retimed") == 1, got.get("warnings")
+        assert "advanced by it" in got["summary"]
 
 
 def test_export_declares_that_u_is_the_period_mean(tmp_path: Path, monkeypatch, capsys) -> None:

@@ -93,7 +93,11 @@ def period_warning(data: Any, cause: str, effect: dict[str, Any]) -> str | None:
 def sentence(dg: Diagnosis) -> str:
     warn = period_warning(dg.data, dg.cause, dg.effect)
     text = _sentence(dg)
-    return f"{text} Caution: {warn}." if warn else text
+    if warn:
+        text = f"{text} Caution: {warn}."
+    if retimed := dg.data.meta.get("omega_timing"):
+        text = f"{text} Note: {retimed}."
+    return text
 
 
 def _sentence(dg: Diagnosis) -> str:
@@ -218,8 +222,14 @@ def as_json(dg: Diagnosis, report: str | None = None) -> dict[str, Any]:
     }
     if dg.reason:
         out["reason"] = dg.reason
+    warnings = []
     if warn := period_warning(dg.data, dg.cause, dg.effect):
-        out["warnings"] = [{"code": "period_not_established", "cause": dg.cause, "reason": warn}]
+        warnings.append({"code": "period_not_established", "cause": dg.cause, "reason": warn})
+    if retimed := dg.data.meta.get("omega_timing"):
+        # the doctor moved the recorded speed (dataset.load): any delay it names is after the move
+        warnings.append({"code": "omega_retimed", "reason": retimed})
+    if warnings:
+        out["warnings"] = warnings
     if report:
         out["report"] = report
     return out
