@@ -15,6 +15,7 @@ import subprocess
 import sys
 import tty
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 
@@ -22,6 +23,7 @@ from tvsd.cli.daemon_cmds import show
 from tvsd.hw.mcu.link import TTY_RISK, McuLink
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import load_spec
+from tvsd.hw.mcu.tty_workers import TtyWorkerBoost
 
 
 def _status_of(settings: McuSettings, io_priority: int | None) -> str:
@@ -75,3 +77,12 @@ def test_refused_names_the_capability_and_the_risk(tmp_path: object) -> None:
     assert out.returncode == 0, out.stderr
     want = f"refused: Operation not permitted (needs CAP_SYS_NICE): {TTY_RISK}"
     assert out.stdout.strip() == want, out.stdout
+
+
+def test_no_unbound_worker_found_is_not_granted(tmp_path: Path) -> None:
+    """A /proc with no kworker/u* thread (a kernel that names them otherwise, a container): the
+    status says none were found, not "granted (…, 0 workers)" (review)."""
+    boost = TtyWorkerBoost("nice", period_s=100.0, proc=tmp_path)
+    status = boost.start()
+    boost.stop()
+    assert status.startswith("none found"), status

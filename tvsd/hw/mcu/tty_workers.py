@@ -133,7 +133,14 @@ class TtyWorkerBoost:
                     return raised
                 raised += 1
             how = f"nice {NICE}" if self.mode == "nice" else f"SCHED_FIFO {FIFO_PRIORITY}"
-            self.status = f"granted ({how}, {len(self.saved)} workers)"
+            found = len(unbound_workers(self.proc))
+            # "granted" only with workers to raise: a kernel that names them otherwise (or a
+            # container that shows none) must not read as a boost in force (review)
+            self.status = (
+                f"granted ({how}, {found} workers, {len(self.saved)} raised by this daemon)"
+                if found
+                else "none found: no unbound kworker (kworker/u*) threads to raise"
+            )
             return raised
 
     def _write(self) -> None:
