@@ -91,11 +91,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     made: list[Path] = []
     for folder, option in folders:
-        problem = _make_dir(folder, option, made)
-        if problem is not None:  # a race with another process, a full disk: undo what we made
+        failed = _make_dir(folder, option, made)
+        if failed is not None:  # a race with another process, a full disk: undo what we made
             for folder_made in reversed(made):
                 folder_made.rmdir()
-            print(f"tvsd: {problem}", file=sys.stderr)
+            print(f"tvsd: {failed}", file=sys.stderr)
             return EXIT_USAGE
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     try:
