@@ -101,3 +101,45 @@ def test_realtime_refused_says_what_is_missing() -> None:
     assert proc.returncode == 0, proc.stderr
     line = proc.stderr.strip()
     assert "refused" in line and "CAP_SYS_NICE" in line and "rtprio" in line and "\n" not in line, line
+
+
+@pytest.mark.parametrize("in_the_way", ["missing", "file"])
+def test_a_refused_socket_folder_leaves_no_data_dir_behind(tmp_path: Path, in_the_way: str) -> None:
+    """tvsd made --data-dir, then found the socket's folder unusable: a failed start left an
+    empty data dir behind. Now every folder is judged before any is made (fails before the fix)."""
+    from tvsd.daemon.main import main as tvsd_main
+
+    if in_the_way == "file":
+        (tmp_path / "run").write_text("")  # a file where the socket's folder should be
+        sock = tmp_path / "run" / "x.sock"
+    else:
+        sock = tmp_path / "nonexistent" / "dir" / "x.sock"
+    assert tvsd_main(["--sil", "--socket", str(sock), "--data-dir", str(tmp_path / "data")]) == 2
+    assert not (tmp_path / "data").exists()
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="drops root to an unprivileged uid")
+def test_an_unwritable_socket_folder_is_refused_before_the_data_dir_is_made() -> None:
+    """The stranger's start: `tvsd --sil --data-dir ~/data` with the default socket /run/tvsd, whose
+    parent only root may write. As nobody (uid 65534), in a world-writable folder."""
+    import tempfile
+
+    top = Path(tempfile.mkdtemp(prefix="tvs-nobody-"))
+    try:
+        top.chmod(0o777)
+        (top / "root-only").mkdir(mode=0o755)
+        code = (
+            # what main() imports, imported as root first (the venv may not be readable by nobody)
+            "import os, sys, dataclasses, tvsd.config, tvsd.control.conditions, tvsd.hw.imu_calibration; "
+            "from tvsd.daemon.main import main; os.setuid(65534); "
+            f"sys.exit(main(['--sil', '--data-dir', '{top}/data', '--socket', '{top}/root-only/run/s.sock']))"
+        )
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2, proc.stderr
+        assert proc.stderr.strip().splitlines()[-1].startswith("tvsd: --socket: cannot create"), proc.stderr
+        assert not (top / "data").exists()
+    finally:
+        for sub in ("root-only", "data"):
+            if (top / sub).is_dir():
+                (top / sub).rmdir()
+        top.rmdir()

@@ -13,6 +13,7 @@ EXIT_FAILURE = 1  # the command ran but the result is a failure (e.g. a check di
 EXIT_USAGE = 2  # bad input: arguments, config, files, requests
 EXIT_UNAVAILABLE = 3  # a device or the daemon is not reachable
 EXIT_INTERNAL = 70  # a bug in tvsd (EX_SOFTWARE)
+EXIT_PIPE = 141  # stdout's reader went away (`tvsctl … | head`): 128 + SIGPIPE, as a C tool's shell status
 
 
 class TvsdError(Exception):

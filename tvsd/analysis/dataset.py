@@ -58,6 +58,8 @@ class Dataset:
     u_unit: str = "V"
     refs: dict[str, np.ndarray] = field(default_factory=dict)  # closed-loop reference columns
     excitation_hz: tuple[float, ...] = ()  # the excitation's declared lines (`# excitation_hz:`)
+    # rows tvsctl export filled by interpolation across a stall (its `gap` column = 1), or None
+    filled: np.ndarray | None = None
 
     @property
     def duration_s(self) -> float:
@@ -81,6 +83,7 @@ class Dataset:
             self.u_unit,
             {k: v[start:stop] for k, v in self.refs.items()},
             self.excitation_hz,
+            None if self.filled is None else self.filled[start:stop],
         )
 
 
@@ -156,6 +159,7 @@ def load(path: Path, cfg: Config) -> Dataset:
         u_unit="V" if unit == "duty" else unit,
         refs=refs,
         excitation_hz=rec.excitation_hz,
+        filled=rec.extra["gap"] != 0 if "gap" in rec.extra else None,
     )
 
 

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.signal import butter, cheby1, filtfilt
 
 from tvsd.analysis.dataset import Dataset
+from tvsd.errors import DataFileError
 
 
 @dataclass(frozen=True)
@@ -92,6 +93,45 @@ def prepare(data: Dataset, band: Band) -> Prepared:
     else:  # EMPS' published recipe: central differences of the filtered position, twice
         speed = np.gradient(filtfilt(b, a, data.position), dt)
         accel = np.gradient(speed, dt)
-    # Drop two corner periods at each end, rounded up to whole decimation blocks.
-    trim = int(np.ceil(2 * fs / cutoff / band.decim) * band.decim) + band.decim
+    trim = _edge(fs, cutoff, band.decim)
     return Prepared(data, Band(cutoff, band.decim, band.order), speed, accel, trim, b, a)
+
+
+def _edge(fs: float, cutoff: float, decim: int) -> int:
+    """Two corner periods, rounded up to whole decimation blocks: the samples dropped at each end
+    (the filters' edge transients), and so how far a sample's influence reaches into the rows."""
+    return int(np.ceil(2 * fs / cutoff / decim) * decim) + decim
+
+
+# Above this share of the fit's rows within the filters' reach of a gap-filled sample, most of
+# what the doctor would fit is the export's interpolation, not the drive: refused, not judged.
+FILLED_REACH_MAX = 0.5
+
+
+def check_filled(data: Dataset, band: Band) -> str | None:
+    """A warning for a recording with gap-filled rows (`gap` = 1), None without any; DataFileError
+    (exit 2) when most rows the fit sees lie within the filters' reach of filled samples. The
+    filling is linear: ω̇ constant under a changing u, a misfit the doctor would name as a cause,
+    and its false-alarm rate is calibrated on measured rows only."""
+    if data.filled is None or not data.filled.any():
+        return None
+    filled = data.filled.astype(bool)
+    n, n_filled = len(filled), int(filled.sum())
+    gaps = int(np.count_nonzero(np.diff(filled.astype(np.int8)) == 1) + filled[0])
+    reach = _edge(data.sample_rate_hz, min(band.cutoff_hz, 0.4 * data.sample_rate_hz), band.decim)
+    seen = np.convolve(filled.astype(float), np.ones(2 * reach + 1), mode="same") > 0.5
+    seen_share = float(seen.mean())
+    what = (
+        f"{data.name}: {n_filled} of {n} rows ({100 * n_filled / n:.3g} %) were filled by "
+        f"interpolation across {gaps} gap(s) (gap = 1), and {100 * seen_share:.3g} % of the rows "
+        f"lie within the filters' reach ({reach} samples) of one"
+    )
+    if seen_share > FILLED_REACH_MAX:
+        raise DataFileError(
+            f"{what}: most of what the fit would see is invented, not measured, so no verdict; "
+            "export a stretch without gaps (tvsctl export --start/--end) or record under tvsd --realtime"
+        )
+    return (
+        f"{what}: the fit takes them as measured, so a cause named may come from the filling "
+        "(the false-alarm rate holds for measured rows only)"
+    )

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from tvsd.cli import argtypes
-from tvsd.cli.output import fmt, print_json, print_table
+from tvsd.cli.output import fmt, print_json, print_table, warn
 from tvsd.config import load_config
 from tvsd.errors import EXIT_OK, UsageError
 
@@ -48,7 +48,7 @@ def _run(args: argparse.Namespace) -> int:
     from tvsd.analysis import report as R
     from tvsd.analysis.dataset import load
     from tvsd.analysis.doctor import COLOUR_P, diagnose
-    from tvsd.analysis.prep import EMPS_BAND, Band
+    from tvsd.analysis.prep import EMPS_BAND, Band, check_filled
     from tvsd.analysis.summary import as_json
 
     cfg = load_config(args.config) if args.config else load_config(params=args.params)
@@ -67,6 +67,10 @@ def _run(args: argparse.Namespace) -> int:
     data = load(args.file, cfg)
     heldout = load(args.heldout, cfg) if args.heldout else None
     band = EMPS_BAND if data.units.axis == "linear" else Band()
+    for dataset in (data, heldout):  # gap-filled rows (tvsctl export's `gap` column)
+        note = None if dataset is None else check_filled(dataset, band)
+        if note is not None:
+            warn(note)
     dg = diagnose(data, cfg.plant.v0, heldout=heldout, band=band, progress=progress, seed=args.seed)
     summary = as_json(dg)
     if args.report:

@@ -15,6 +15,7 @@ import argparse
 import json
 import math
 import sys
+import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -23,7 +24,7 @@ from tvsd.cli.human import humanize
 from tvsd.cli.output import print_json, print_pairs, print_table
 from tvsd.cli.progress import on_terminal
 from tvsd.errors import EXIT_OK, UsageError
-from tvsd.rpc.client import DEFAULT_SOCKET, ENV_SOCKET, RpcClient, socket_path
+from tvsd.rpc.client import DEFAULT_SOCKET, ENV_SOCKET, RemoteError, RpcClient, socket_path
 
 GAIN_NAMES = ("Gp", "Gd", "Gr", "G0")
 CALL_TIMEOUT_S = 5.0  # an answer the daemon owes at once (status, speed, ...)
@@ -125,9 +126,40 @@ def _calibrate_imu(args: argparse.Namespace, client: RpcClient) -> object:
         raise UsageError(f"--seconds {args.seconds:g}: give a duration up to 60 s (the scanner at rest)")
     if args.timeout is None:  # the answer comes after the capture
         client.timeout = args.seconds + CALL_TIMEOUT_S
+    _wait_for_rest(client)
     if on_terminal():
         print(f"tvsctl: capturing {args.seconds:g} s at rest, then the answer", file=sys.stderr, flush=True)
     return client.call("imu_calibrate", seconds=args.seconds)
+
+
+# `speed 0` then `calibrate-imu`: the rotor ramps down (10 rev/s² from at most 60 rev/s, plus
+# control.stop_margin_s 1 s: 7 s) while the daemon refuses a calibration above 0.05 rev/s.
+REST_RPS = 0.05  # the daemon's limit (tvsd.daemon.api.api_imu_calibrate)
+REST_WAIT_S = 15.0  # twice the longest ramp down; then the daemon's refusal is the answer
+REST_POLL_S = 0.2
+
+
+def _wait_for_rest(client: RpcClient, wait_s: float = REST_WAIT_S, poll_s: float = REST_POLL_S) -> None:
+    """Wait, up to `wait_s`, for a rotor commanded to 0 to stop; never for one still driven (the
+    daemon's refusal says to stop it)."""
+    deadline = time.monotonic() + wait_s
+    said = False
+    while True:
+        try:
+            status = client.call("status")
+        except RemoteError:  # a daemon without status (a stand-in): it judges the rest itself
+            return
+        if not isinstance(status, Mapping):
+            return
+        rps, setpoint = status.get("rps"), status.get("rps_setpoint")
+        if not isinstance(rps, int | float) or abs(rps) <= REST_RPS or setpoint != 0:
+            return
+        if time.monotonic() > deadline:
+            return
+        if not said:
+            print(f"tvsctl: waiting for the rotor to stop ({rps:.2f} rev/s)", file=sys.stderr, flush=True)
+            said = True
+        time.sleep(poll_s)
 
 
 def _faults(args: argparse.Namespace, client: RpcClient) -> object:

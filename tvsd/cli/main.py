@@ -12,11 +12,12 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import select
 import sys
 from collections.abc import Sequence
 
 from tvsd import __version__
-from tvsd.errors import EXIT_INTERNAL, EXIT_USAGE, TvsdError
+from tvsd.errors import EXIT_INTERNAL, EXIT_PIPE, EXIT_USAGE, TvsdError
 
 _DAEMON_COMMANDS = (
     "status",
@@ -83,6 +84,45 @@ def _complete() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run one command. When stdout's reader goes away (`tvsctl faults | head`) the command stops
+    quietly with EXIT_PIPE: stdout is flushed inside the try (a buffered line would otherwise fail
+    at the interpreter's exit, "Exception ignored … BrokenPipeError") and then pointed at
+    /dev/null, the Python docs' recipe (library/signal.html, "Note on SIGPIPE")."""
+    try:
+        try:
+            status = _main(argv)
+        finally:  # also after argparse's --help / usage error, which leave by SystemExit
+            sys.stdout.flush()
+    except BrokenPipeError:
+        if not _stdout_gone():
+            raise  # another pipe (a socket): not the reader of stdout going away
+        return _quiet_stdout()
+    except SystemExit as exc:  # argparse's --help/--version swallow the failed write and exit 0
+        if exc.code in (0, None) and _stdout_gone():
+            return _quiet_stdout()
+        raise
+    return status
+
+
+def _quiet_stdout() -> int:
+    """Point fd 1 at /dev/null (the interpreter's last flush must not fail) and say EXIT_PIPE."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return EXIT_PIPE
+
+
+def _stdout_gone() -> bool:
+    """Whether fd 1 is a pipe whose reader has closed it: Linux's poll() says POLLERR for it."""
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poller.poll(0))
+    except (OSError, ValueError):  # stdout closed or replaced by an object without a descriptor
+        return False
+
+
+def _main(argv: Sequence[str] | None) -> int:
     if argv is None:
         _complete()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -90,6 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         status: int = args.func(args)
+        sys.stdout.flush()  # a write that fails here is still the command's, handled below
     except TvsdError as exc:
         print(f"tvsctl: {exc}", file=sys.stderr)
         return exc.exit_status
@@ -97,7 +138,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("tvsctl: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
-        return 0
+        if _stdout_gone():
+            raise  # main() makes it quiet
+        print(
+            "tvsctl: internal error (BrokenPipeError: a pipe other than stdout closed); please report it",
+            file=sys.stderr,
+        )
+        return EXIT_INTERNAL
     except Exception as exc:  # a bug: say so plainly, with enough to report it
         print(f"tvsctl: internal error ({type(exc).__name__}: {exc}); please report it", file=sys.stderr)
         if "--debug" in sys.argv:

@@ -81,10 +81,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         imu = replace(cfg.imu, calibration_file=args.data_dir / SIL_FILE_NAME)
         cfg = replace(cfg, devices=replace(cfg.devices, mcu="sil", imu="sil"), imu=imu)
     config_path = args.config or config_dir() / "tvsd.yaml"
-    for folder, option in ((args.data_dir, "--data-dir"), (args.socket.parent, "--socket")):
-        problem = _make_dir(folder, option)
-        if problem is not None:
+    folders = ((args.data_dir, "--data-dir"), (args.socket.parent, "--socket"))
+    # Every folder is judged before any is made: a start refused on the socket's folder must not
+    # leave an empty data dir behind (found by branch newuser).
+    problems = [p for p in (_dir_problem(folder, option) for folder, option in folders) if p]
+    if problems:
+        for problem in problems:
             print(f"tvsd: {problem}", file=sys.stderr)
+        return EXIT_USAGE
+    made: list[Path] = []
+    for folder, option in folders:
+        failed = _make_dir(folder, option, made)
+        if failed is not None:  # a race with another process, a full disk: undo what we made
+            for folder_made in reversed(made):
+                folder_made.rmdir()
+            print(f"tvsd: {failed}", file=sys.stderr)
             return EXIT_USAGE
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     try:
@@ -94,9 +105,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exc.exit_status
 
 
-def _make_dir(folder: Path, option: str) -> str | None:
-    """Create `folder` if its parent exists (one level, said on stderr; never a whole missing
-    path: a typo must not grow a tree), refuse a symlink or a non-directory; the problem or None."""
+def _dir_problem(folder: Path, option: str) -> str | None:
+    """Why `folder` cannot serve (None if it can): it, or its parent when it is to be made, must
+    be a directory this user may write; one level is made at most (never a whole missing path: a
+    typo must not grow a tree); a symlink to a directory is allowed, anything else in the way not."""
     try:
         st = folder.lstat()
     except FileNotFoundError:
@@ -105,18 +117,30 @@ def _make_dir(folder: Path, option: str) -> str | None:
                 f"{option} {folder}: directory {folder.parent} does not exist; create it first "
                 "(systemd's RuntimeDirectory=/StateDirectory= do) or give another path"
             )
-        try:
-            folder.mkdir(mode=0o750)
-        except OSError as exc:
-            return f"{option}: cannot create {folder}: {exc.strerror}; give a writable place"
-        print(f"tvsd: created {folder} ({option})", file=sys.stderr)
+        if not os.access(folder.parent, os.W_OK | os.X_OK):
+            return f"{option}: cannot create {folder}: Permission denied; give a writable place"
         return None
     except OSError as exc:
         return f"{option} {folder}: {exc.strerror}"
     if stat.S_ISLNK(st.st_mode) and folder.is_dir():
-        return None  # a symlinked directory the admin set up (e.g. /var/lib/tvsd → /data): allowed
-    if not stat.S_ISDIR(st.st_mode):
+        pass  # a symlinked directory the admin set up (e.g. /var/lib/tvsd → /data): allowed
+    elif not stat.S_ISDIR(st.st_mode):
         return f"{option} {folder} exists and is not a directory: remove it or give another path"
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"{option} {folder}: not writable by this user; give a writable place"
+    return None
+
+
+def _make_dir(folder: Path, option: str, made: list[Path]) -> str | None:
+    """Create `folder` if it is missing (said on stderr, appended to `made`); the problem or None."""
+    if folder.is_dir():
+        return None
+    try:
+        folder.mkdir(mode=0o750)
+    except OSError as exc:
+        return f"{option}: cannot create {folder}: {exc.strerror}; give a writable place"
+    made.append(folder)
+    print(f"tvsd: created {folder} ({option})", file=sys.stderr)
     return None
 
 

@@ -302,9 +302,15 @@ class PlantMotion:
             s, np.ascontiguousarray(ends, np.float64), np.ascontiguousarray(accel, np.float64),
             stop, self.leak_tau_s, self._omega, self._s_last,
         )  # fmt: skip
-        self._s_last, self._omega = pos, omega
         now = h.at(s)
         turning = np.abs(now.omega) >= self.still_below_rad_s
+        # The leak (τ_leak = 1 s) only keeps an integrated random acceleration bounded; it is not
+        # how the frame settles: on its mounts it comes to rest within their ring-down (tens of
+        # ms). Left to the leak, the rate held when the shaft stopped decayed over seconds and
+        # calibrate-imu refused "pl IMU is moving" (spread 0.89, then 0.35 deg/s). At rest the
+        # mounts hold no rate, as before the first sample.
+        rate = np.where(turning, rate, 0.0)
+        self._s_last, self._omega = pos, omega if turning[-1] else 0.0
         alpha = np.where((s <= stop) & turning, now.disturbance * self.scale, 0.0)
         self._shaft = float(now.omega[-1])
         return MotionSample(
