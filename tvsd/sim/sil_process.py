@@ -34,7 +34,8 @@ from typing import Any
 
 from tvsd.config import Config
 from tvsd.hw import i2c_remote as wire
-from tvsd.sim.sil_watch import StallWatch, TimedBus
+from tvsd.sim.bus_timing import TimedBus
+from tvsd.sim.sil_watch import StallWatch
 
 PR_SET_PDEATHSIG = 1
 SIL_PRIORITY = (

@@ -39,7 +39,6 @@ from pathlib import Path
 from typing import Any
 
 from tvsd.sim import proc_where as W
-from tvsd.sim.bus_timing import TimedBus  # noqa: F401  (sil_process's import: the bus thread's timing)
 
 ENV_STALLS = "TVSD_SIL_STALLS"
 TICK_S = 0.01
