@@ -29,12 +29,16 @@ POLL_S = 0.2
 CONTROL_HZ = load_config().control.rate_hz  # the config `tvsd --sil` runs
 
 
-def tvsctl(sock: Path, *argv: str, check: bool = True) -> subprocess.CompletedProcess[str]:
+def tvsctl(
+    sock: Path, *argv: str, check: bool = True, timeout: float = 60.0
+) -> subprocess.CompletedProcess[str]:
+    """`timeout`: the subprocess's own; a command given a longer --timeout (identify's 180 s)
+    needs a longer one, or the test dies first while the daemon is still within its bound."""
     proc = subprocess.run(
         [sys.executable, "-m", "tvsd.cli.main", *argv, "--socket", str(sock)],
         capture_output=True,
         text=True,
-        timeout=60,
+        timeout=timeout,
     )
     if check:
         assert proc.returncode == 0, proc.stderr

@@ -47,7 +47,7 @@ def test_identify_records_its_excitation_feeds_analyze_and_a_fault_aborts_it(dae
     assert err["code"] == -32602 and "unknown excitation 'chirp'" in err["message"], err
 
     # --- a run through the command line ------------------------------------------------------------
-    proc = tvsctl(sock, "identify", "--seconds", "20", "--json", "--timeout", "180")
+    proc = tvsctl(sock, "identify", "--seconds", "20", "--json", "--timeout", "180", timeout=240)
     res = json.loads(proc.stdout)
     assert res["outcome"] == "done", res
     assert "identify: steps, multisine, prbs for 20 s" in proc.stderr

@@ -71,13 +71,48 @@ def hidden_daemon(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], Path,
     yield from _daemon(tmp_path, daemon_config(tmp_path, changes), realtime=True)
 
 
+# Torques not hidden in the plant. A later cause is named at the decision's own false-alarm rate
+# (tvsd.analysis.selection: α = 1 % per recording once every real cause is in the model), so one
+# recording in a hundred names one of these by chance: CI saw a `resonance` at z 3.91 against its
+# gate 3.85 as a second cause. A spurious cause on the first recording is therefore judged on a
+# second, independent one: only a cause named on both fails (by chance α² = 1e-4; a doctor that
+# names one on a share p of such recordings fails with p², 9 % at p = 30 %, every time at p = 1).
+SPURIOUS = {"cogging", "resonance", "friction_asymmetry", "drift"}
+
+
 @pytest.mark.slow
 def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_path):
     _, sock, _ = hidden_daemon
     spin_to(sock, RPS, timeout=60)
+    verdict, shown = _identify_and_analyze(sock, tmp_path / "identify.csv")
+    named = {c["cause"]: c for c in verdict["causes"]}
+    assert "imbalance" in named, shown
+    # No other torque is hidden in the plant. The command's path (daemon → serial link → MCU →
+    # H-bridge) is the SIL loop's own and may show as a `delay` (1.0-1.5 ms from a frame's
+    # sending to the SIL plant, applied in its next 1 ms chunk; named 1.2 and 1.6 ms on 2 of 12
+    # runs with omega from the frames, z -0.6-3.1 on the others).
+    # No clip: the export's u shows every clip the drive makes (docs/measurements/doctor-method.md, step 8).
+    if set(named) & SPURIOUS:
+        again, shown_again = _identify_and_analyze(sock, tmp_path / "identify-2.csv")
+        twice = set(named) & {c["cause"] for c in again["causes"]} & SPURIOUS
+        assert not twice, f"first: {shown} || second: {shown_again}"
+    if "delay" in named:
+        assert 1e-3 < named["delay"]["effect"]["delay_s"] < 20e-3, shown
+    # The amplitude within 4 of its own standard errors (the vibration's share, and J's), a miss
+    # by chance ≈ 6e-5: on a 20 s export ±2.3e-5 N·m, so ±45 % (the factor 2 before was ±100 %/−50 %).
+    imb = named["imbalance"]["effect"]
+    assert abs(imb["amplitude"] - 2e-4) < 4 * imb["amplitude_se"], shown
+
+
+def _identify_and_analyze(sock: Path, out: Path) -> tuple[dict, str]:
+    """One identify run at the setpoint, exported to `out` and analysed: (verdict, its summary).
+    Skips the test when the recording shows the daemon stalled."""
     run: dict = {}
     for _ in range(ATTEMPTS):
-        proc = tvsctl(sock, "identify", "--seconds", "20", "--json", "--timeout", "180", check=False)
+        # identify's own bound is 180 s; the subprocess's must be longer, or the test dies first
+        proc = tvsctl(
+            sock, "identify", "--seconds", "20", "--json", "--timeout", "180", check=False, timeout=240
+        )
         run = json.loads(proc.stdout) if proc.stdout.strip() else {"refused": proc.stderr}
         if run.get("outcome") == "done":
             break
@@ -88,7 +123,6 @@ def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_p
             break
         wait_status(sock, lambda s: abs(s["rps"] - RPS) < 0.5, 60, f"{RPS} rev/s again", fault_ends=True)
     assert run.get("outcome") == "done", run
-    out = tmp_path / "identify.csv"
     cli = [sys.executable, "-m", "tvsd.cli.main"]
     exp = subprocess.run(
         [*cli, "export", run["recording"], "--csv", str(out)], capture_output=True, text=True, timeout=120
@@ -114,18 +148,21 @@ def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_p
     )
     assert ana.returncode == 0, ana.stderr
     verdict = json.loads(ana.stdout)
-    named = {c["cause"]: c for c in verdict["causes"]}
-    shown = {k: verdict[k] for k in ("cause", "causes", "candidates")}
-    assert "imbalance" in named, shown
-    # No other torque is hidden in the plant. The command's path (daemon → serial link → MCU →
-    # H-bridge) is the SIL loop's own and may show as a `delay` (1.0-1.5 ms from a frame's
-    # sending to the SIL plant, applied in its next 1 ms chunk; named 1.2 and 1.6 ms on 2 of 12
-    # runs with omega from the frames, z -0.6-3.1 on the others).
-    # No clip: the export's u shows every clip the drive makes (docs/measurements/doctor-method.md, step 8).
-    assert not set(named) & {"cogging", "resonance", "friction_asymmetry", "drift"}, shown
-    if "delay" in named:
-        assert 1e-3 < named["delay"]["effect"]["delay_s"] < 20e-3, shown
-    # The amplitude within 4 of its own standard errors (the vibration's share, and J's), a miss
-    # by chance ≈ 6e-5: on a 20 s export ±2.3e-5 N·m, so ±45 % (the factor 2 before was ±100 %/−50 %).
-    imb = named["imbalance"]["effect"]
-    assert abs(imb["amplitude"] - 2e-4) < 4 * imb["amplitude_se"], imb
+    return verdict, _brief(verdict, meta, tracking)
+
+
+def _brief(verdict: dict, meta: dict, tracking: float) -> str:
+    """What a failure must show in one screen (pytest cuts a long dict's repr in the middle):
+    each cause named and the leading candidates with their statistic, gate and effect, and the
+    recording's own state."""
+
+    def one(c: dict) -> str:
+        eff = {k: v for k, v in (c.get("effect") or {}).items() if isinstance(v, (int, float))}
+        return f"{c['cause']} z={c.get('score')!s:.6} gate={c.get('threshold')!s:.6} {eff}"
+
+    named = "; ".join(one(c) for c in verdict["causes"])
+    others = "; ".join(one(c) for c in verdict["candidates"][:5])
+    return (
+        f"named: {named} | candidates: {others} | recording: {meta['gaps']} gaps, "
+        f"{meta.get('gap_samples', 0)} filled samples, tracking {tracking:.3f} rev/s rms"
+    )
