@@ -211,6 +211,25 @@ def test_encoder_moves_linearly_between_feeds_on_the_manual_clock(
         assert counts[round(t * CLOCK_HZ) % 2**32] == want, f"tick {k}"
 
 
+def test_a_zero_pulse_on_the_feeds_own_tick_does_not_sample_the_old_count(
+    manual: tuple[VirtualMcu, serial.Serial, Reader],
+) -> None:
+    """A revolution completed exactly at a feed's time: its zero pulse advances the core through
+    that tick before the feed sets the new count. The tick must still read the shaft there, not
+    the count of the feed before (1 ms old: in a SIL identify export a step in phi of 0.08 rad
+    and back, named `cogging` of order 13 at z 95)."""
+    vm, port, rd = manual
+    _arm(port, rd, watchdog_ms=1000, state_div=1)
+    t0 = round(vm.time_s / TICK_S) * TICK_S + 0.001  # feeds on tick times
+    a0, a1 = math.tau - 0.5, math.tau  # the crossing of 2π at the second feed's own time
+    vm.set_shaft(a0, t0)
+    vm.set_shaft(a1, t0 + 0.001)
+    vm.set_shaft(a1 + 0.5, t0 + 0.002)
+    vm.advance_to(t0 + 0.0025)
+    counts = {st.fields["ticks"]: st.fields["encoder16"] for st in rd.collect("state", timeout=0.3)}
+    assert counts[round((t0 + 0.001) * CLOCK_HZ) % 2**32] == round(a1 / math.tau * 4096)
+
+
 def test_pulse_events_sequence(manual: tuple[VirtualMcu, serial.Serial, Reader]) -> None:
     vm, _, rd = manual
     vm.set_shaft(0.0, 0.010)

@@ -73,8 +73,14 @@ VMCU_API uint64_t vmcu_now(void) { return vm.now; }
 
 static int32_t encoder_now(void)
 {
-    if (!vm.ramp || vm.now <= vm.ramp_t0 || vm.now >= vm.ramp_t1)
+    if (!vm.ramp || vm.now <= vm.ramp_t0)
         return vm.encoder;
+    /* At the ramp's end and past it the shaft is at c1 even before the plant's feed sets the
+     * count: a zero pulse latched on that very tick advances the core through it first (a
+     * crossing within one timer tick of a 1 ms feed; the sample then held the count from the
+     * feed before, 1 ms old, once in 31 SIL identify runs: a `cogging` at z 95). */
+    if (vm.now >= vm.ramp_t1)
+        return (int32_t)(uint32_t)(int64_t)llround(vm.ramp_c1);
     double f = (double)(vm.now - vm.ramp_t0) / (double)(vm.ramp_t1 - vm.ramp_t0);
     double c = vm.ramp_c0 + f * (vm.ramp_c1 - vm.ramp_c0);
     return (int32_t)(uint32_t)(int64_t)llround(c); /* wraps like the chip's 32-bit count */
