@@ -9,7 +9,8 @@ still answer `status` after every case. Exit 0 when every case passes, 1 otherwi
 
 Cases that change the daemon's state (speed, aim, gains, record, calibrate) are sent only with
 values it must refuse, except the record start/stop/start race (issue 13), which leaves no
-recording running. Run it against a SIL daemon (`tvsd --sil`), never the scanner.
+recording running. Run it against a SIL daemon (`tvsd --sil`), never the scanner. A bad parameter
+is -32602 whatever the daemon's state: the same cases pass against a daemon with `devices.imu: off`.
 """
 
 from __future__ import annotations
@@ -85,8 +86,11 @@ def cases() -> list[Case]:
         Case("params 5 positional", [_req("aim", [1, 2, 3, 4, 5])], {P}),
         Case("aim NaN-free but unreachable", [_req("aim", {"phi_deg": 1e300, "gamma_deg": 0})], {P}),
         Case("gains negative", [_req("gains_set", [-1, -1, -1, -1])], {P}),
+        # -32602 in every state: with no IMU (devices.imu: off) or the aperture turning too
         Case("imu_calibrate negative", [_req("imu_calibrate", {"seconds": -1})], {P}),
         Case("imu_calibrate 1e300", [_req("imu_calibrate", {"seconds": 1e300})], {P}),
+        Case("imu_calibrate 0.5 s", [_req("imu_calibrate", {"seconds": 0.5})], {P}),
+        Case("imu_calibrate 400-digit", [_params("imu_calibrate", f'{{"seconds":{BIG}}}')], {P}),
         Case("record_window negative", [_req("record_window", {"seconds": -1})], {P, S}),
         Case("record_window 0", [_req("record_window", {"seconds": 0})], {P, S}),
         Case("identify negative seconds", [_req("identify", {"seconds": -5})], {P, S}),

@@ -44,6 +44,27 @@ def test_a_bad_parameter_is_invalid_params_even_in_a_fault(method: str, kwargs: 
     assert d.speeds == []
 
 
+@pytest.mark.parametrize("seconds", [-1.0, 0.5, 1e300, float("nan")])
+@pytest.mark.parametrize("state", ["no IMU", "turning"])
+def test_a_bad_calibration_length_is_invalid_params_whatever_the_imu_and_the_rotor(
+    state: str, seconds: float
+) -> None:
+    """`imu_calibrate` judged the daemon first: `seconds -1` with no IMU running (devices.imu off)
+    or with the aperture turning said -32002 ("no IMU", "stop it"), at rest with an IMU -32602."""
+
+    async def calibrate(seconds: float) -> dict:
+        raise AssertionError("a refused request must not calibrate")
+
+    d = faulted_daemon()
+    d.state = DaemonState.IDLE
+    d.imu = None if state == "no IMU" else SimpleNamespace(calibrate=calibrate)
+    d.measured_rps = 25.0 if state == "turning" else 0.0
+    with pytest.raises(RpcError) as err:
+        asyncio.run(Api(d).api_imu_calibrate(seconds))  # type: ignore[arg-type]
+    assert err.value.code == INVALID_PARAMS, err.value.message
+    assert "imu.calibrate_max_s" in err.value.message
+
+
 def test_a_moving_sensor_at_calibration_is_exit_1_not_a_device_fault() -> None:
     """`tvsctl calibrate-imu` on the installed wheel, right after the motor stopped: "pl IMU is
     moving" came back as a device error (-32001), which tvsctl turns into exit 3 ("a device is

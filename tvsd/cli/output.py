@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 import sys
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -30,8 +31,15 @@ def print_json(obj: Mapping[str, Any]) -> None:
     print(json.dumps(_clean(obj), indent=None, sort_keys=False))
 
 
+def _is_number(value: Any) -> bool:
+    """A real number, Python's or numpy's (numpy registers its scalars with `numbers`); a bool,
+    either kind, is not one (np.bool_ is not registered, bool is an int)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
 def fmt(value: Any) -> str:
-    if isinstance(value, float):
+    if _is_number(value) and not isinstance(value, numbers.Integral):  # float, np.float32, …
+        value = float(value)
         if not math.isfinite(value):
             return "—"
         return f"{value:.4g}"
@@ -42,7 +50,7 @@ def print_table(rows: Sequence[Sequence[Any]], headers: Sequence[str] | None = N
     # Numbers right-aligned (digits line up), text left-aligned and the line's end not padded:
     # a long text cell (a fault's message) must not push spaces into every other row.
     numeric = [
-        bool(rows) and all(isinstance(r[j], int | float) and not isinstance(r[j], bool) for r in rows)
+        bool(rows) and all(_is_number(r[j]) for r in rows)
         for j in range(len(rows[0]) if rows else len(headers or ()))
     ]
     cells = [[fmt(v) for v in r] for r in rows]

@@ -151,13 +151,15 @@ class Api:
         return {"gains": asdict(gains), "warnings": warnings(conds)}
 
     async def api_imu_calibrate(self, seconds: float = 5.0) -> dict[str, Any]:
+        # The parameter first, the state second (as api_speed): a bad request gets the same answer
+        # with no IMU or a turning aperture as at rest.
+        longest = self.d.cfg.imu.calibrate_max_s
+        if not 1 <= seconds <= longest:
+            raise RpcError(INVALID_PARAMS, f"seconds {seconds:g}: use 1 .. {longest:g} (imu.calibrate_max_s)")
         if self.d.imu is None:
             raise RpcError(
                 STATE_ERROR, "no IMU is running (devices.imu is off or it failed to start: see faults)"
             )
-        longest = self.d.cfg.imu.calibrate_max_s
-        if not 1 <= seconds <= longest:
-            raise RpcError(INVALID_PARAMS, f"seconds {seconds:g}: use 1 .. {longest:g} (imu.calibrate_max_s)")
         if abs(self.d.measured_rps) > 0.05:
             raise RpcError(
                 STATE_ERROR, "the aperture is turning: stop it (tvsctl speed 0) to calibrate at rest"

@@ -53,12 +53,22 @@ class TimedBus:
         self.over = [0] * len(SERVICE_EDGES_MS)
         self.service, self.excess = _Histogram(), _Histogram()
         self.cpu_sum_ms = self.bit_sum_ms = 0.0
+        # the twins' share of that CPU: their sample generations and the CPU those took
+        self._twins = list(getattr(self._bus, "devices", {}).values())
+        self.twin_cpu_sum_ms, self.twin_generations = 0.0, 0
 
     def _bits(self) -> int:
         return int(getattr(self._bus, "bits", 0))
 
+    def _twin_work(self) -> tuple[float, int]:
+        return (
+            sum(float(getattr(d, "cpu_s", 0.0)) for d in self._twins),
+            sum(int(getattr(d, "generations", 0)) for d in self._twins),
+        )
+
     def __call__(self, op: int, payload: bytes) -> bytes:
         t0, c0, b0 = time.monotonic(), time.thread_time(), self._bits()
+        w0 = self._twin_work()
         try:
             out: bytes = self.handle(op, payload)
             return out
@@ -71,6 +81,9 @@ class TimedBus:
             self.excess.add(ms - bit_ms)
             self.bit_sum_ms += bit_ms
             self.cpu_sum_ms += 1e3 * (time.thread_time() - c0)
+            w1 = self._twin_work()
+            self.twin_cpu_sum_ms += 1e3 * (w1[0] - w0[0])
+            self.twin_generations += w1[1] - w0[1]
             for i, edge in enumerate(SERVICE_EDGES_MS):
                 if ms > edge:
                     self.over[i] += 1
@@ -87,4 +100,6 @@ class TimedBus:
             "excess_mean_ms": round(self.excess.mean(), 3),  # service beyond the bit time
             "excess_p99_ms": round(self.excess.quantile(0.99), 1),
             "cpu_mean_ms": round(self.cpu_sum_ms / n, 3),  # the bus thread's own; the rest waits
+            "twin_cpu_mean_ms": round(self.twin_cpu_sum_ms / n, 3),  # of which the twins' sampling
+            "twin_generations_per_request": round(self.twin_generations / n, 3),
         }

@@ -119,14 +119,14 @@ class TtyWorkerBoost:
             if due:
                 self.saved.update({s.pid: s for s in due})
                 self._write()
-            for s in due:
+            for i, s in enumerate(due):
                 try:
                     self._give(s.pid)
                 except ProcessLookupError:
                     self.saved.pop(s.pid, None)
                     continue
                 except PermissionError as exc:
-                    for rest in due[raised:]:
+                    for rest in due[i:]:  # those not reached (not those raised: review)
                         self.saved.pop(rest.pid, None)
                     self._write()
                     self.status = f"refused: {exc.strerror or exc} (needs CAP_SYS_NICE)"
@@ -186,10 +186,12 @@ class TtyWorkerBoost:
 
     def stop(self) -> None:
         """Stop re-checking; the workers it raised back as they were (those still the same
-        process with what it gave them), its state file removed (idempotent)."""
+        process with what it gave them), its state file removed (idempotent).
+        Exclusive with a re-check pass: once `_stop` is set no pass begins (apply checks it under
+        the lock), and one under way holds the lock, so it ends before anything is put back;
+        no join's timeout is part of that (before the lock, a 2 s join that timed out let a pass
+        raise a worker after the put-back, for good: tests/test_tty_worker_race.py)."""
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
         with self._lock:
             kept = {}
             for pid, s in self.saved.items():
@@ -199,3 +201,5 @@ class TtyWorkerBoost:
                     kept[pid] = s
             self.saved = kept
             self._write()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=2.0)  # at once: its next wait or pass sees _stop
