@@ -82,3 +82,27 @@ def test_the_rules_on_the_design_reach_the_line_scan(identify8: Dataset) -> None
     assert np.array_equal(calibrate._excitation_rows(design)[0], ref_rows)
     design.rules = Rules(lines_of_reference=False)
     assert np.array_equal(calibrate._excitation_rows(design)[0], design.X[:, 0])
+
+
+def test_a_clips_exposed_units_are_measured_on_the_confirmations_rows(identify8: Dataset) -> None:
+    """exposure.confirmation_baseline: the rows the clip's confirmation fits (after the spin-up,
+    instrument.steady_start) and the doctor's baseline columns. A missing command that lies only in
+    the spin-up (ending half a second before the steady rows begin, past the band filter's
+    reach) is invisible to the confirmation: 0 there, where the measure over the whole file took
+    it (> 0). One that lies in the steady rows and is no combination of the baseline's columns
+    (a 3 Hz square wave) is seen: > 0."""
+    from tvsd.analysis.exposure import MOVING_RAD_S, beyond_baseline, confirmation_baseline
+
+    data = identify8
+    base = confirmation_baseline(data)
+    assert base is not None
+    start = instrument.steady_start(data)
+    rate = data.sample_rate_hz
+    assert start > rate  # the spin-up lasts over a second: there are rows to leave out
+    spin = np.zeros_like(data.u)
+    spin[: start - round(0.5 * rate)] = 1.0
+    omega = data.speed if data.speed is not None else np.gradient(data.position, data.t)
+    assert beyond_baseline(spin, data.u, omega, np.abs(omega) > MOVING_RAD_S) > 0.05
+    assert base.beyond(spin) < 1e-6 * float(np.sqrt(np.mean(spin**2)))
+    steady = np.where(np.arange(len(data.u)) > start, np.sign(np.sin(2 * np.pi * 3.0 * data.t)), 0.0)
+    assert base.beyond(steady) > 0.5

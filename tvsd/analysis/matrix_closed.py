@@ -230,14 +230,17 @@ def deadzone_size(u: np.ndarray, omega: np.ndarray, target_v: float) -> tuple[fl
 
 
 def seen(path: Path, case: M.Case, cfg: Config) -> dict[str, float]:
-    """tvsd.analysis.exposure's measures of the case's effect on the recording the doctor got."""
+    """tvsd.analysis.exposure's measures of the case's effect on the recording the doctor got; a
+    clip's exposed units on the rows and columns of its confirmation (the default rules').
+    """
     from tvsd.analysis.dataset import load
-    from tvsd.analysis.exposure import exposure
+    from tvsd.analysis.exposure import confirmation_baseline, exposure
 
     data = load(path, cfg)
     omega = data.speed if data.speed is not None else np.gradient(data.position, data.t)
     dt = 1.0 / data.sample_rate_hz
-    return exposure(case.effect, data.u, omega, cfg.plant, case.sigma_v, dt)
+    baseline = confirmation_baseline(data) if case.cause == "saturation" else None
+    return exposure(case.effect, data.u, omega, cfg.plant, case.sigma_v, dt, baseline)
 
 
 def run(
