@@ -1,8 +1,9 @@
 """Why the control function (u − û as a regressor) does or does not confirm a closed-loop drift:
 per cached matrix recording, the drift's z on the least-squares design, on the same design with
-the control function (instrument.control_function), the gate of each, and the share of the
-drift's best block (orthogonal to the baseline) that the control function column explains on the
-rows (R²). docs/measurements/closedfix.md, "Drift: a control function".
+the control function (`control_function` below; in tvsd.analysis.instrument at commit 3e8a4e5,
+removed: not adopted), the gate of each, and the share of the drift's best block (orthogonal to
+the baseline) that the control function column explains on the rows (R²).
+docs/measurements/closedfix.md, "Drift: a control function".
 
     nice -n 19 .venv/bin/python scripts/closedfix_cf_probe.py ROWS.jsonl CACHE_DIR [SEEDS]
 """
@@ -22,7 +23,20 @@ from tvsd.analysis import design as D
 from tvsd.analysis import matrix as M
 from tvsd.analysis import matrix_closed as MC
 from tvsd.analysis.dataset import load
-from tvsd.analysis.prep import Band, prepare
+from tvsd.analysis.prep import Band, Prepared, prepare
+
+
+def control_function(prep: Prepared) -> np.ndarray:
+    """The first stage's residual u − û as regression rows (band-filtered, decimated like the
+    command column): û is u's projection on the instruments (the reference at every lag and
+    identify's PRBS: first_stage's linear prediction, before the clip to the recorded range).
+    Added to the least-squares design as a regressor it carries the part of the command that
+    answers the noise, so the other coefficients are those of the structural equation (the
+    control-function form of 2SLS: Hausman 1978; Rivers & Vuong 1988), while the command
+    columns keep their measured variation (the instrumented design replaces them by û's)."""
+    fs = instrument.first_stage(prep)
+    lin = fs.u_lin if fs.u_lin is not None else fs.u_hat
+    return prep.band_rows(prep.data.u - lin)
 
 
 def share_explained(block: np.ndarray, cf: np.ndarray, X: np.ndarray) -> float:
@@ -44,7 +58,7 @@ def main() -> None:
         data = load(cache / f"case{case.seed}.csv", MC.case_config(case))
         prep = prepare(data, Band())
         measured = absorber.absorb(D.build(prep, data.offset_term, True))
-        cf = instrument.control_function(prep)
+        cf = control_function(prep)
         with_cf = dataclasses.replace(measured, X=np.column_stack([measured.X, cf]))
         ls, wcf = C.test_all(measured, seed=0), C.test_all(with_cf, seed=0)
         z = {t.cause: t for t in ls.tested}

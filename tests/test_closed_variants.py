@@ -40,9 +40,7 @@ def test_each_variant_carries_the_switches_it_set_before_as_module_flags() -> No
         got = (r.skip_undetermined_folds, r.lines_of_reference, r.identified_only, r.expected_maps)
         got += (r.identified_for, r.expected_for, r.spin_only_for, v.iv, v.reference_only)
         assert got == want, name
-        assert r.control_function_for == ()
     assert VARIANTS["ls"].rules == DEFAULT
-    assert VARIANTS["lscf"].rules == Rules(control_function_for=("drift",))
 
 
 def test_the_rules_are_frozen_and_no_module_flag_is_left_to_leak() -> None:

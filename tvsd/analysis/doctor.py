@@ -380,17 +380,9 @@ def _instrumented_check(
     matrix's closed-loop clips and delays stay far above the gate: 293 and 83–1406)."""
     if not instrument.excited(data):
         return None
-    memo: dict[tuple[bool, bool, bool] | str, C.Outcome] = {}
+    memo: dict[tuple[bool, bool, bool], C.Outcome] = {}
 
     def holds(cause: str) -> bool:
-        if cause in rules.control_function_for:  # least squares with u − û as a regressor
-            if "cf" not in memo:
-                cf = instrument.control_function(prep)
-                X = np.column_stack([measured.X, cf])
-                with_cf = replace(measured, X=X, names=(*measured.names, "cf"))
-                memo["cf"] = C.test_all(with_cf, seed=seed)
-            out = memo["cf"]
-            return any(t.cause == cause and t.z > out.threshold for t in out.tested)
         # Per cause (rules.identified_for, expected_for; docs/measurements/closedsat.md): the
         # clip's block as E[f(u) | instruments], θ_IV along identified directions only.
         key = (

@@ -158,19 +158,6 @@ def first_stage(prep: Prepared, use_exc: bool = True, spin_only: bool = False) -
     return FirstStage(u_hat, w_hat, r2_u, _r2(prep.speed[edge], w_hat[edge]), u_lin, spread, (lo, hi))
 
 
-def control_function(prep: Prepared) -> np.ndarray:
-    """The first stage's residual u − û as regression rows (band-filtered, decimated like the
-    command column): û is u's projection on the instruments (the reference at every lag and
-    identify's PRBS: first_stage's linear prediction, before the clip to the recorded range).
-    Added to the least-squares design as a regressor it carries the part of the command that
-    answers the noise, so the other coefficients are those of the structural equation (the
-    control-function form of 2SLS: Hausman 1978; Rivers & Vuong 1988), while the command
-    columns keep their measured variation (the instrumented design replaces them by û's)."""
-    fs = first_stage(prep)
-    lin = fs.u_lin if fs.u_lin is not None else fs.u_hat
-    return prep.band_rows(prep.data.u - lin)
-
-
 def _wiener(x: np.ndarray, y: np.ndarray, fs: float, start: int = 0) -> np.ndarray:
     """y's best linear prediction from x (any lags), fitted from `start` on (Welch segments of
     WIENER_S), applied to all of x."""

@@ -16,9 +16,9 @@ instrumented confirmation with rules.identified_only and expected_maps: branch c
 (the clip confirmed on main's instrumented design, as before branch closedsat), `lsd` (the drift
 confirmed along the identified directions too), `lss` (the clip's confirmation on rows from the
 spin-up's end: instrument.steady_start's spin_only); both measured and left off
-(docs/measurements/closedsat.md); `lscf` (the drift confirmed by least squares with the first
-stage's residual as a regressor, a control function: docs/measurements/closedfix.md). Each is a
-frozen `Variant` (VARIANTS) whose rules (tvsd.analysis.rules) diagnose() gets explicitly.
+(docs/measurements/closedsat.md). Each is a frozen `Variant` (VARIANTS) whose rules
+(tvsd.analysis.rules) diagnose() gets explicitly. (`lscf`, the drift confirmed with a control
+function, was measured and removed: docs/measurements/closedfix.md.)
 
     python -m tvsd.analysis.matrix_closed OUT.jsonl [--reps 15] [--nulls 30] [--sizes 3,10]
         [--seed 0] [--worker 0 --workers 1] [--variants ls,iv] [--reversal]
@@ -72,7 +72,6 @@ VARIANTS: dict[str, Variant] = {
     "lsm": Variant(Rules(identified_for=(), expected_for=(), spin_only_for=())),
     "lsd": Variant(Rules(identified_for=(*DEFAULT.identified_for, "drift"))),
     "lss": Variant(Rules(spin_only_for=("saturation",))),
-    "lscf": Variant(Rules(control_function_for=("drift",))),
     "ls0": Variant(Rules(skip_undetermined_folds=False, lines_of_reference=False)),
     "ls1": Variant(Rules(lines_of_reference=False)),
     "ls2": Variant(Rules(identified_only=True, expected_maps=True)),

@@ -31,9 +31,6 @@ class Rules:
     identified_for: tuple[str, ...] = ("saturation",)
     expected_for: tuple[str, ...] = ("saturation",)
     spin_only_for: tuple[str, ...] = ()
-    # Per cause: confirmed by least squares with the first stage's residual u − û as a regressor
-    # (a control function) instead of on the instrumented design (docs/measurements/closedfix.md)
-    control_function_for: tuple[str, ...] = ()
 
 
 DEFAULT = Rules()
