@@ -1,9 +1,10 @@
 """Drift's closed-loop miss: the confirmation on main's design (`ls`) and along identified directions
 (`lsd`) on matrix seed 71's case 710084 (R +5 %, 1.17 visible units, refused by the confirmation) and
 closedfa's null 520144 (seed 52: an R drift at z 5.0 whose windows trend; the null that would show
-whether `lsd` raises a drift alarm). docs/measurements/closedsat.md, "Drift".
+whether `lsd` raises a drift alarm). docs/measurements/closedsat.md, "Drift"; with `lscf` (the
+drift confirmed with a control function) docs/measurements/closedfix.md.
 
-    nice -n 19 .venv/bin/python scripts/closedsat_drift_probe.py OUT.jsonl [CACHE_DIR]
+    nice -n 19 .venv/bin/python scripts/closedsat_drift_probe.py OUT.jsonl [CACHE_DIR] [ls,lsd]
 """
 
 from __future__ import annotations
@@ -12,7 +13,6 @@ import json
 import sys
 from pathlib import Path
 
-from tvsd.analysis import instrument
 from tvsd.analysis import matrix as M
 from tvsd.analysis import matrix_closed as MC
 from tvsd.analysis.dataset import load
@@ -26,23 +26,19 @@ from tvsd.sim.record import record
 def main() -> None:
     out = Path(sys.argv[1])
     cache = Path(sys.argv[2]) if len(sys.argv) > 2 else Path("/tmp/closedsat/probe")
+    variants = sys.argv[3].split(",") if len(sys.argv) > 3 else ["ls", "lsd"]
     cache.mkdir(parents=True, exist_ok=True)
     c71 = next(c for c in MC.plan_cells(8, (3.0, 10.0, 30.0), 71, 4) if c.seed == 710084)
     n52 = M.cases(n_null=145, reps=0, seed=52, profiles=M.CLOSED_PROFILES)[144]
-    default = instrument.IDENTIFIED_FOR
     for case, cfg in ((c71, MC.case_config(c71)), (n52, M.case_config(load_config(), n52))):
         path = cache / f"case{case.seed}.csv"
         if not path.exists():
             effects = (parse_effect(case.effect),) if case.effect else ()
             record(cfg, path, case.profile, 30.0, effects, case.seed, rps=case.rps or 20.0)
         data = load(path, cfg)
-        for variant in ("ls", "lsd"):
-            instrument.IDENTIFIED_FOR = (*default, "drift") if variant == "lsd" else default
-            try:
-                with heldout_gain_skipped():
-                    dg = diagnose(data, cfg.plant.v0)
-            finally:
-                instrument.IDENTIFIED_FOR = default
+        for variant in variants:
+            with heldout_gain_skipped():
+                dg = diagnose(data, cfg.plant.v0, rules=MC.VARIANTS[variant].rules)
             z = {s.cause: round(float(s.z), 3) for s in dg.ranked}
             why = {s.cause: s.why_not[0] for s in dg.ranked if s.why_not}
             row = {

@@ -61,6 +61,8 @@ def per_size(rs: list[dict[str, Any]], cause: str, variants: tuple[str, ...]) ->
 
 
 def nulls(rs: list[dict[str, Any]]) -> None:
+    if not rs:
+        return
     fa = [r for r in rs if r["ls"] != "none"]
     print(f"nulls (ls): false alarms {cp(len(fa), len(rs))}: {dict(Counter(r['ls'] for r in fa))}")
     for cause in ("saturation", "drift", "deadzone", "delay"):

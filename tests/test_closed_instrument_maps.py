@@ -67,7 +67,7 @@ def test_a_closed_loop_clip_at_the_drives_rail_is_confirmed_on_the_instruments(t
     main's design (`lsm`, the rule before branch closedsat) refuses it (z 1.5): its left side
     carries a Stribeck column's 1e7 coefficient and the block is f(û). The default (`ls`)
     confirms the clip on its own design, E[f(u) | instruments] with θ_IV along identified
-    directions (instrument.IDENTIFIED_FOR, EXPECTED_FOR), and names it (z 5.5, gate 4.2).
+    directions (rules.identified_for, expected_for), and names it (z 5.5, gate 4.2).
     Deterministic (fixed seeds)."""
     from tvsd.analysis import matrix_closed as MC
 

@@ -278,7 +278,6 @@ def null_gram(
     return np.real(Fw.conj().T @ F) / n
 
 
-SKIP_UNDETERMINED_FOLDS = True  # False: the rule before (matrix_closed's `ls0` variant measures it)
 SKIP_UNPINNED_FOLDS = True  # False: every fold of full rank judged, as before the pinning rule
 
 
@@ -309,15 +308,16 @@ def heldout_gain(design: Design, out: Outcome, X_ext: np.ndarray, folds: int = C
     # Judged against the whole record's rank, not the column count: where two columns are one on
     # every row (an identify export's absorber shapes), every fold was "undetermined", all were
     # left out, and a delay at z 91 and an imbalance at z 24 were refused with no gain measured.
-    full_rank = np.linalg.matrix_rank(X_ext[out.keep]) if SKIP_UNDETERMINED_FOLDS else 0
-    pinned = SKIP_UNDETERMINED_FOLDS and SKIP_UNPINNED_FOLDS
+    skip = design.rules.skip_undetermined_folds  # False: the rule before (matrix_closed's `ls0`)
+    full_rank = np.linalg.matrix_rank(X_ext[out.keep]) if skip else 0
+    pinned = skip and SKIP_UNPINNED_FOLDS
     evidence = _evidence(design, out, X_ext) if pinned else math.inf
     for lo, hi in itertools.pairwise(edges):
         fold = (t >= lo) & (t < hi)
         train = ~fold
         if np.count_nonzero(out.keep & train) <= X_ext.shape[1] or not np.any(out.keep & fold):
             continue
-        if SKIP_UNDETERMINED_FOLDS and np.linalg.matrix_rank(X_ext[out.keep & train]) < full_rank:
+        if skip and np.linalg.matrix_rank(X_ext[out.keep & train]) < full_rank:
             # The other folds do not determine the model (closed-loop scanning at one speed:
             # Coulomb friction and the absorber's shapes are one constant there), so its
             # prediction of this fold is arbitrary: ±1e9 noise units on a spin-up fold.
@@ -422,7 +422,6 @@ def _floor(pgram: np.ndarray, width: int) -> np.ndarray:
 # lobe); the multisine plays over less than the record (the ramp before, fades), so ±2, the width
 # the command's detected lines are left out with.
 DECLARED_BINS = 2
-LINES_OF_REFERENCE = True  # False: the command's lines, as before (matrix_closed's ls0/ls1 variants)
 
 
 def _excitation_rows(design: Design) -> list[np.ndarray]:
@@ -438,7 +437,7 @@ def _excitation_rows(design: Design) -> list[np.ndarray]:
     not: 24 of them left out the band's low part at scanning speeds (case 45's mode sits on
     the 15th), and a mode there is still weighed against cogging's own test."""
     ref = design.prep.data.refs.get("omega_ref")
-    closed = ref is not None and LINES_OF_REFERENCE
+    closed = ref is not None and design.rules.lines_of_reference  # off: the command's (ls0, ls1)
     out = [design.prep.band_rows(ref)] if ref is not None and closed else [design.X[:, 0]]
     out += [opt.block[:, 0] for opt in design.options.get("imbalance", [])]
     return out

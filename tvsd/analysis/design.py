@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tvsd.analysis.prep import Prepared
+from tvsd.analysis.rules import DEFAULT, Rules
 
 MAX_COGGING_ORDER = 24
 MAX_DELAY_S = 0.03
@@ -57,6 +58,7 @@ class Design:
     u_top: float  # largest |command|
     options: dict[str, list[Option]] = field(default_factory=dict)
     back_emf: bool = True
+    rules: Rules = DEFAULT  # the doctor's switchable rules (tvsd.analysis.rules)
 
 
 def _shift(u: np.ndarray, samples: int) -> np.ndarray:

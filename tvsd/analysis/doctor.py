@@ -32,6 +32,7 @@ from tvsd.analysis import design as D
 from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.noise import NoiseReport, analyse, on_declared_line, spectral_cause
 from tvsd.analysis.prep import Band, prepare
+from tvsd.analysis.rules import DEFAULT, Rules
 from tvsd.analysis.simulate import ReducedModel, simulate
 from tvsd.causes import Effect
 from tvsd.model import effects as E
@@ -143,15 +144,17 @@ def diagnose(
     progress: Progress | None = None,
     seed: int = 0,
     iv: bool = False,
+    rules: Rules = DEFAULT,
 ) -> Diagnosis:
     """The doctor on one recording. BLAS runs on one thread: its threads spin-wait, which cost
     a third of the CPU on 2 cores (more under load), and its reductions' order follows the
     thread count, which moved every bootstrap z by ~1 % between machines (the null's draws pass
-    through an eigendecomposition of a nearly degenerate Gram matrix)."""
+    through an eigendecomposition of a nearly degenerate Gram matrix). `rules`: the switchable
+    rules (tvsd.analysis.rules; the closed-loop matrix's variants)."""
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):
-        return _diagnose(data, v0, heldout, band, progress, seed, iv)
+        return _diagnose(data, v0, heldout, band, progress, seed, iv, rules)
 
 
 def _diagnose(
@@ -162,6 +165,7 @@ def _diagnose(
     progress: Progress | None,
     seed: int,
     iv: bool,
+    rules: Rules,
 ) -> Diagnosis:
     say = progress or (lambda _msg: None)
     sense.check_recording(data)
@@ -172,11 +176,20 @@ def _diagnose(
     say("preparing the regression (band-limited rows, baseline and candidate columns)")
     prep = prepare(data, band)
     design = absorber.absorb(D.build(prep, data.offset_term, rotary))
+    design.rules = rules
     measured = design
     if iv and instrument.excited(data):  # closed loop, excited: 2SLS (opt-in,
         # docs/measurements/doctor-closed.md)
-        instrumented, _ = instrument.instrumented(prep, data.offset_term, rotary, measured=measured)
+        instrumented, _ = instrument.instrumented(
+            prep,
+            data.offset_term,
+            rotary,
+            measured=measured,
+            expected=rules.expected_maps,
+            identified_only=rules.identified_only,
+        )
         design = absorber.absorb(instrumented)
+        design.rules = rules
     design.back_emf = data.b_omega > 0 or data.u_unit == "V"
     note = _closed_loop_note(data)
     if note is not None:
@@ -210,7 +223,7 @@ def _diagnose(
         data,
         drive_identifiable=note is None,
         friction_judged=not closed_ls,
-        instrumented=_instrumented_check(prep, data, rotary, measured, seed) if closed_ls else None,
+        instrumented=_instrumented_check(prep, data, rotary, measured, seed, rules) if closed_ls else None,
     )
     say("testing the noise colour")
     rate_rows = 1.0 / float(np.median(np.diff(prep.t_rows)))
@@ -236,7 +249,7 @@ def _diagnose(
     peak = peak and not on_declared_line(noise, data.excitation_hz)  # the excitation's own line
     peak_amp = abs(J) * math.sqrt(2.0) * noise.peak_rms
     refuse = cause == "none" and peak and closed_ls
-    if refuse and not _peak_in_plant(prep, data, rotary, measured, out.keep, noise):
+    if refuse and not _peak_in_plant(prep, data, rotary, measured, out.keep, noise, rules):
         # Closed loop by least squares: a peak the instrumented fit does not leave is not the plant's.
         loop = {"frequency_hz": noise.peak_hz, "amplitude": peak_amp, "q": noise.peak_q}
         p_peak = float(chi2.sf(noise.peak_lr, 2))
@@ -352,7 +365,7 @@ def _causes(
 
 
 def _instrumented_check(
-    prep: Any, data: Dataset, rotary: bool, measured: D.Design, seed: int
+    prep: Any, data: Dataset, rotary: bool, measured: D.Design, seed: int, rules: Rules = DEFAULT
 ) -> Callable[[str], bool] | None:
     """Closed loop by least squares, with an excited reference: whether a command-side cause
     also passes the decision on the instrumented design (tvsd.analysis.instrument: every
@@ -370,18 +383,20 @@ def _instrumented_check(
     memo: dict[tuple[bool, bool, bool], C.Outcome] = {}
 
     def holds(cause: str) -> bool:
-        # Per cause (instrument.IDENTIFIED_FOR, EXPECTED_FOR; docs/measurements/closedsat.md): the
+        # Per cause (rules.identified_for, expected_for; docs/measurements/closedsat.md): the
         # clip's block as E[f(u) | instruments], θ_IV along identified directions only.
-        fors = (instrument.IDENTIFIED_FOR, instrument.EXPECTED_FOR, instrument.SPIN_ONLY_FOR)
-        key = (cause in fors[0], cause in fors[1], cause in fors[2])
+        key = (
+            cause in rules.identified_for or rules.identified_only,
+            cause in rules.expected_for or rules.expected_maps,
+            cause in rules.spin_only_for,
+        )
         if key not in memo:
             ident, expect, spin = key
-            iv, _ = instrument.instrumented(
-                prep, data.offset_term, rotary, expected=expect or None, spin_only=spin
-            )
+            iv, _ = instrument.instrumented(prep, data.offset_term, rotary, expected=expect, spin_only=spin)
             iv = absorber.absorb(iv)
             iv.back_emf = measured.back_emf
-            iv.y = instrument.structural_left_side(iv, measured, identified_only=ident or None)
+            iv.rules = rules
+            iv.y = instrument.structural_left_side(iv, measured, identified_only=ident)
             memo[key] = C.test_all(iv, seed=seed)
         out = memo[key]
         return any(t.cause == cause and t.z > out.threshold for t in out.tested)
@@ -398,7 +413,13 @@ LOOP_PEAK = (
 
 
 def _peak_in_plant(
-    prep: Any, data: Dataset, rotary: bool, measured: D.Design, keep: np.ndarray, noise: NoiseReport
+    prep: Any,
+    data: Dataset,
+    rotary: bool,
+    measured: D.Design,
+    keep: np.ndarray,
+    noise: NoiseReport,
+    rules: Rules = DEFAULT,
 ) -> bool:
     """Whether a residual peak of a closed-loop least-squares fit is the plant's: the law feeds
     the measured noise back into the command, so least squares on that command is biased and its
@@ -409,7 +430,7 @@ def _peak_in_plant(
     the loop's peak, goes. The peak must be there too, within its half-power band."""
     if not instrument.excited(data):
         return False  # nothing to instrument with: a peak is not told from the loop's
-    iv, _ = instrument.instrumented(prep, data.offset_term, rotary)
+    iv, _ = instrument.instrumented(prep, data.offset_term, rotary, expected=rules.expected_maps)
     resid = instrument.structural_residual(absorber.absorb(iv), measured)
     if resid is None:
         return False

@@ -7,9 +7,13 @@ rotation). These measures, taken on the recording itself (or on the same case re
 the effect: the pilot), state the size in units the test can see:
 
 - saturation: the share of samples whose |u| exceeds u_max, the rms excess in noise units
-  (`units`), and the part of the clip's torque the baseline's own columns (u, ω, sgn ω, a
-  constant) cannot take (`exposed_units`, as the dead zone's): a clip that holds the command at
-  a rail on every step is partly a lower input gain, which the baseline absorbs;
+  (`units`), and the part of the clip's torque the baseline's own columns cannot take
+  (`exposed_units`, as the dead zone's): a clip that holds the command at a rail on every step
+  is partly a lower input gain, which the baseline absorbs. Given the confirmation's `baseline`
+  (closed loop: confirmation_baseline), on the rows and with the columns the clip's confirmation
+  uses — after the spin-up (instrument.steady_start), the doctor's baseline (u, its one-sample
+  shift, ω, sgn ω, the Stribeck and absorber shapes; a constant only where the unit has an
+  offset), band-limited rows; without it, every moving sample with u, ω, sgn ω and a constant;
 - dead zone: the share of moving samples where the command is inside the zone, or pushes
   against the motion (there a dead zone and Coulomb friction differ: docs/measurements/cldz.md, "Why, per
   cause"); its width in noise units (`units`, u0·b_u) and the part of its torque a Coulomb level cannot
@@ -31,21 +35,72 @@ Noise units are torque over J·σv (tvsd.analysis.matrix).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.matrix import delay_torque
+from tvsd.analysis.rules import DEFAULT, Rules
 from tvsd.causes import parse_effect
 
 MOVING_RAD_S = 0.5  # |ω| above this: the shaft moves (friction acts by direction)
 
 
+@dataclass(frozen=True)
+class Baseline:
+    """A confirmation's baseline: its columns on the rows it fits, and how a full-rate signal
+    becomes rows (band-limited, decimated: tvsd.analysis.prep)."""
+
+    X: np.ndarray  # the baseline's columns on the rows used
+    rows: np.ndarray  # which of the design's rows are used (bool)
+    band_rows: Callable[[np.ndarray], np.ndarray]
+
+    def beyond(self, d: np.ndarray) -> float:
+        """rms over the rows of the full-rate signal `d` less its least-squares fit on X."""
+        dm = self.band_rows(d)[self.rows]
+        if len(dm) < 10:
+            return 0.0
+        coef, *_ = np.linalg.lstsq(self.X, dm, rcond=None)
+        return float(np.sqrt(np.mean((dm - self.X @ coef) ** 2)))
+
+
+def confirmation_baseline(
+    data: Dataset, cause: str = "saturation", rules: Rules = DEFAULT
+) -> Baseline | None:
+    """The rows and baseline columns on which the closed-loop confirmation judges `cause`
+    (doctor._instrumented_check): the rows of its instrumented design (moving, after the
+    spin-up: instrument.steady_start, spin_only as `rules` say), the doctor's measured baseline
+    columns (design.build with the absorber's shapes) on them. None where there is no
+    confirmation (no excited reference)."""
+    from tvsd.analysis import absorber, instrument
+    from tvsd.analysis import design as D
+    from tvsd.analysis.prep import Band, prepare
+
+    if "omega_ref" not in data.refs or not instrument.excited(data):
+        return None
+    prep = prepare(data, Band())
+    rotary = data.units.axis == "rotary"
+    measured = absorber.absorb(D.build(prep, data.offset_term, rotary))
+    spin = cause in rules.spin_only_for
+    iv, _ = instrument.instrumented(prep, data.offset_term, rotary, spin_only=spin)
+    return Baseline(measured.X[iv.rows_mask], iv.rows_mask, prep.band_rows)
+
+
 def exposure(
-    effect_text: str | None, u: np.ndarray, omega: np.ndarray, plant: Any, sigma_v: float, dt: float
+    effect_text: str | None,
+    u: np.ndarray,
+    omega: np.ndarray,
+    plant: Any,
+    sigma_v: float,
+    dt: float,
+    baseline: Baseline | None = None,
 ) -> dict[str, float]:
     """The measures above for one effect on recorded command `u` (V) and speed `omega` (rad/s);
-    `plant` carries J, kv, R, kM, ku, tau_c."""
+    `plant` carries J, kv, R, kM, ku, tau_c; `baseline`: the confirmation's rows and columns
+    for a clip's `exposed_units` (closed loop: confirmation_baseline)."""
     if not effect_text:
         return {}
     e = parse_effect(effect_text)
@@ -60,7 +115,11 @@ def exposure(
         out["share"] = float(np.mean(mag > u_max))
         excess = np.sign(u) * np.maximum(mag - u_max, 0.0)
         out["units"] = b_u * float(np.sqrt(np.mean(excess**2))) / jsv
-        out["exposed_units"] = b_u * beyond_baseline(excess, u, omega, moving) / jsv
+        if baseline is not None:
+            beyond = baseline.beyond(excess)
+        else:
+            beyond = beyond_baseline(excess, u, omega, moving)
+        out["exposed_units"] = b_u * beyond / jsv
     elif e.name == "deadzone":
         u0 = float(p["u0"])
         against = moving & (np.sign(u) != np.sign(omega))

@@ -27,8 +27,8 @@ the first stage predicts from it too, and the second stage's left side is cleane
 Status: two uses. As a confirmation, by default: in closed loop by least squares a command-side
 cause (dead zone, clip, delay, drift, friction asymmetry) must also pass the gate on the
 instrumented design (tvsd.analysis.doctor._instrumented_check; docs/measurements/doctor-false-alarms.md,
-"Closed-loop false alarms"); the clip on its own design (IDENTIFIED_FOR, EXPECTED_FOR:
-docs/measurements/closedsat.md).
+"Closed-loop false alarms"); the clip on its own design (tvsd.analysis.rules' identified_for,
+expected_for: docs/measurements/closedsat.md).
 As the whole analysis, opt-in (`diagnose(..., iv=True)`; `python -m tvsd.analysis.matrix_closed
 --variants ls,iv`), not the default, because it did not measure better. On 104 cases of the
 closed-loop family (docs/measurements/closed-loop-ls-iv.w*.jsonl, the same files through both): 3
@@ -197,8 +197,9 @@ def instrumented(
     rotary: bool,
     use_exc: bool = True,
     measured: D.Design | None = None,
-    expected: bool | None = None,
+    expected: bool = False,
     spin_only: bool = False,
+    identified_only: bool = False,
 ) -> tuple[D.Design, FirstStage]:
     """The design with every command and speed regressor built from the reference's prediction
     (the acceleration, the angle and time as measured).
@@ -209,39 +210,29 @@ def instrumented(
     second stage's residual also holds (X − X̂)·θ, the law's answer to the noise (a low-pass,
     correlated with the noise), which the bootstrap's i.i.d. whitened errors do not describe and
     the scanned command blocks (built from û) fit. `expected`: the maps' blocks as
-    E[f(u) | instruments] (expected_maps; None: EXPECTED_MAPS); `spin_only`: rows from the
-    spin-up's end (steady_start)."""
+    E[f(u) | instruments] (expected_maps); `spin_only`: rows from the spin-up's end
+    (steady_start); `identified_only`: θ_IV along identified directions (structural_left_side)."""
     fs = first_stage(prep, use_exc, spin_only)
     data = dataclasses.replace(prep.data, u=fs.u_hat)
     prep_iv = dataclasses.replace(prep, data=data, speed=fs.speed_hat)
     t0 = float(prep.data.t[steady_start(prep.data, spin_only)])
     design = D.build(prep_iv, offset, rotary, fit_mask=prep.t_rows >= t0)
-    if EXPECTED_MAPS if expected is None else expected:
+    if expected:
         expected_maps(design, prep, fs)
     if measured is not None:
-        design.y = structural_left_side(design, measured)
+        design.y = structural_left_side(design, measured, identified_only)
     return design, fs
 
 
 WEAK_F = 10.0  # a direction of the instrumented columns is identified from this first-stage F on
-# Off by default: on the same seed-71 recordings they named 3 refused cases and refused 5 that
-# the old statistic passed (dead zones at 30x: the weak directions' least-squares fit on the
-# measured friction columns takes the one-direction dead zone's torque, a Coulomb level; clips
-# at 3x), net 0 (docs/measurements/cldz.md). Switched on by `matrix_closed --variants ls2`.
-IDENTIFIED_ONLY = False  # structural_left_side: 2SLS only along identified directions
-EXPECTED_MAPS = False  # the dead zone's and clip's instrumented blocks as E[f(u) | instruments]
-# Per cause, the confirmation's design (doctor._instrumented_check): the clip's block as
-# E[f(u) | instruments] (its tail, which f(û) misses) with θ_IV along identified directions only;
-# the dead zone keeps main's design (both cost one-direction zones at 30x, cldz.md). closedsat.md.
-IDENTIFIED_FOR: tuple[str, ...] = ("saturation",)
-EXPECTED_FOR: tuple[str, ...] = ("saturation",)
-SPIN_ONLY_FOR: tuple[str, ...] = ()  # rows from the spin-up's end (steady_start's spin_only)
+# Which cause's confirmation uses which of these designs: tvsd.analysis.rules (identified_for,
+# expected_for, spin_only_for; identified_only and expected_maps for every cause, branch cldz).
 
 
-def structural_left_side(iv: D.Design, measured: D.Design, identified_only: bool | None = None) -> np.ndarray:
+def structural_left_side(iv: D.Design, measured: D.Design, identified_only: bool = False) -> np.ndarray:
     """y − (X − X̂)·θ_IV: the left side whose regression on X̂ leaves the structural residual
     y − X·θ_IV (unchanged y where the two designs' columns differ). θ_IV by least squares on X̂
-    (main's rule) unless `identified_only` (None: IDENTIFIED_ONLY), which does the following.
+    (main's rule) unless `identified_only`, which does the following.
 
     θ_IV is fitted only along the directions of X̂ the instruments identify: a column that is
     ~0 on the rows (a Stribeck term at the scanning speed, e^−(ω/ωs)² ≈ 1e−50) or a
@@ -258,7 +249,7 @@ def structural_left_side(iv: D.Design, measured: D.Design, identified_only: bool
     if measured.X.shape != iv.X.shape:
         return iv.y
     m = iv.rows_mask
-    if not (IDENTIFIED_ONLY if identified_only is None else identified_only):  # main's rule: lstsq on X̂
+    if not identified_only:  # main's rule: lstsq on X̂
         theta, *_ = np.linalg.lstsq(iv.X[m], iv.y[m], rcond=None)
         return iv.y - (measured.X - iv.X) @ theta
     A, B, y = iv.X[m], measured.X[m], iv.y[m]

@@ -12,11 +12,13 @@ reference and, when recorded, identify's voltage excitation `u_exc` as instrumen
 `iv_ref` (the reference alone, as before u_exc was recorded), `ls0` (least squares as before this
 branch: every fold in the out-of-sample check, calibrate.heldout_gain; the line scan off the
 command's lines), `ls1` (the folds' rule on, the lines still the command's), `ls2` (the
-instrumented confirmation with instrument.IDENTIFIED_ONLY and EXPECTED_MAPS: branch cldz), `lsm`
+instrumented confirmation with rules.identified_only and expected_maps: branch cldz), `lsm`
 (the clip confirmed on main's instrumented design, as before branch closedsat), `lsd` (the drift
 confirmed along the identified directions too), `lss` (the clip's confirmation on rows from the
 spin-up's end: instrument.steady_start's spin_only); both measured and left off
-(docs/measurements/closedsat.md).
+(docs/measurements/closedsat.md). Each is a frozen `Variant` (VARIANTS) whose rules
+(tvsd.analysis.rules) diagnose() gets explicitly. (`lscf`, the drift confirmed with a control
+function, was measured and removed: docs/measurements/closedfix.md.)
 
     python -m tvsd.analysis.matrix_closed OUT.jsonl [--reps 15] [--nulls 30] [--sizes 3,10]
         [--seed 0] [--worker 0 --workers 1] [--variants ls,iv] [--reversal]
@@ -50,10 +52,32 @@ from typing import Any
 import numpy as np
 
 from tvsd.analysis import matrix as M
+from tvsd.analysis.rules import DEFAULT, Rules
 from tvsd.causes import Effect, parse_effect
 from tvsd.config import Config, load_config
 
-VARIANTS = ("ls", "lsm", "lsd", "lss", "ls0", "ls1", "ls2", "iv", "iv_ref")
+
+@dataclasses.dataclass(frozen=True)
+class Variant:
+    """One way of running the doctor on the matrix's files: its rules, 2SLS as the whole
+    analysis (`iv`), and whether identify's PRBS column is hidden from it (the reference alone)."""
+
+    rules: Rules = DEFAULT
+    iv: bool = False
+    reference_only: bool = False
+
+
+VARIANTS: dict[str, Variant] = {
+    "ls": Variant(),
+    "lsm": Variant(Rules(identified_for=(), expected_for=(), spin_only_for=())),
+    "lsd": Variant(Rules(identified_for=(*DEFAULT.identified_for, "drift"))),
+    "lss": Variant(Rules(spin_only_for=("saturation",))),
+    "ls0": Variant(Rules(skip_undetermined_folds=False, lines_of_reference=False)),
+    "ls1": Variant(Rules(lines_of_reference=False)),
+    "ls2": Variant(Rules(identified_only=True, expected_maps=True)),
+    "iv": Variant(iv=True),
+    "iv_ref": Variant(iv=True, reference_only=True),
+}
 
 
 def plan(n_null: int, reps: int, sizes: tuple[float, ...], seed: int) -> list[M.Case]:
@@ -131,28 +155,12 @@ def analyse(path: Path, cfg: Config, variant: str) -> tuple[str, float, dict[str
 
     t0 = time.perf_counter()
     why: dict[str, Any] = {}
+    how = VARIANTS[variant]
     try:
         data = load(path, cfg)
-        if variant == "iv_ref":
+        if how.reference_only:
             data = dataclasses.replace(data, refs={k: v for k, v in data.refs.items() if k != "u_exc"})
-        from tvsd.analysis import calibrate, instrument
-
-        calibrate.SKIP_UNDETERMINED_FOLDS = variant != "ls0"
-        calibrate.LINES_OF_REFERENCE = variant not in ("ls0", "ls1")
-        instrument.IDENTIFIED_ONLY = instrument.EXPECTED_MAPS = variant == "ls2"
-        default_for = (instrument.IDENTIFIED_FOR, instrument.EXPECTED_FOR, instrument.SPIN_ONLY_FOR)
-        if variant == "lsm":
-            instrument.IDENTIFIED_FOR = instrument.EXPECTED_FOR = instrument.SPIN_ONLY_FOR = ()
-        elif variant == "lsd":
-            instrument.IDENTIFIED_FOR = (*instrument.IDENTIFIED_FOR, "drift")
-        elif variant == "lss":
-            instrument.SPIN_ONLY_FOR = ("saturation",)
-        try:
-            dg = diagnose(data, cfg.plant.v0, iv=variant.startswith("iv"))
-        finally:  # the defaults again, whatever the variant did
-            calibrate.SKIP_UNDETERMINED_FOLDS = calibrate.LINES_OF_REFERENCE = True
-            instrument.IDENTIFIED_ONLY = instrument.EXPECTED_MAPS = False
-            instrument.IDENTIFIED_FOR, instrument.EXPECTED_FOR, instrument.SPIN_ONLY_FOR = default_for
+        dg = diagnose(data, cfg.plant.v0, iv=how.iv, rules=how.rules)
         found = dg.cause
         why = {
             "z": {s.cause: round(float(s.z), 3) for s in dg.ranked},
@@ -166,13 +174,17 @@ def analyse(path: Path, cfg: Config, variant: str) -> tuple[str, float, dict[str
     return found, time.perf_counter() - t0, why
 
 
-def sized(case: M.Case, cfg: Config, tmp: Path, seconds: float, keep: bool = False) -> M.Case:
+def sized(
+    case: M.Case, cfg: Config, tmp: Path, seconds: float, keep: bool = False, exposed_deadzone: bool = False
+) -> M.Case:
     """A closed-loop saturation set where the command is: the case recorded without it (same
     seed: same noise and excitation) gives the command, and u_max sits m × 1 % below its 99 %
     quantile, as in open loop (matrix.saturation_size). From the drive limit, 0.97–0.90 ×
     u_max lay above every command of a scanning plant held with ≤ 40 % of the drive. `keep`: the
-    pilot stays in `tmp` (a cache) and is reused."""
-    if case.cause != "saturation" and not (case.cause == "deadzone" and EXPOSED_DEADZONE):
+    pilot stays in `tmp` (a cache) and is reused. `exposed_deadzone` (`--exposed-deadzone`, opt-in,
+    not measured yet): a dead zone sized by what the pilot exposes, not by u_max
+    (docs/measurements/cldz.md: 0.4 % of u_max per 1× gave 0–80 exposed noise units)."""
+    if case.cause != "saturation" and not (case.cause == "deadzone" and exposed_deadzone):
         return case
     from tvsd.sim.record import record
 
@@ -196,12 +208,6 @@ def sized(case: M.Case, cfg: Config, tmp: Path, seconds: float, keep: bool = Fal
     return dataclasses.replace(case, effect=f"saturation:u_max={u_max:.6g}", noise_units=units)
 
 
-# Opt-in (`--exposed-deadzone`, not measured yet): a closed-loop dead zone sized by what the pilot
-# recording exposes, not by u_max (docs/measurements/cldz.md: 0.4 % of u_max per 1× gave 0–80 exposed noise
-# units).
-EXPOSED_DEADZONE = False
-
-
 def deadzone_size(u: np.ndarray, omega: np.ndarray, target_v: float) -> tuple[float, float]:
     """The narrowest zone u0 whose torque beyond a Coulomb level (exposure.beyond_coulomb, in
     volts of command) on this command reaches `target_v`, and what it reaches: the torque causes'
@@ -223,14 +229,17 @@ def deadzone_size(u: np.ndarray, omega: np.ndarray, target_v: float) -> tuple[fl
 
 
 def seen(path: Path, case: M.Case, cfg: Config) -> dict[str, float]:
-    """tvsd.analysis.exposure's measures of the case's effect on the recording the doctor got."""
+    """tvsd.analysis.exposure's measures of the case's effect on the recording the doctor got; a
+    clip's exposed units on the rows and columns of its confirmation (the default rules').
+    """
     from tvsd.analysis.dataset import load
-    from tvsd.analysis.exposure import exposure
+    from tvsd.analysis.exposure import confirmation_baseline, exposure
 
     data = load(path, cfg)
     omega = data.speed if data.speed is not None else np.gradient(data.position, data.t)
     dt = 1.0 / data.sample_rate_hz
-    return exposure(case.effect, data.u, omega, cfg.plant, case.sigma_v, dt)
+    baseline = confirmation_baseline(data) if case.cause == "saturation" else None
+    return exposure(case.effect, data.u, omega, cfg.plant, case.sigma_v, dt, baseline)
 
 
 def run(
@@ -241,6 +250,7 @@ def run(
     identify: dict[str, Any] | None = None,
     cache: Path | None = None,
     gain: bool = True,
+    exposed_deadzone: bool = False,
 ) -> None:
     """`cache`: keep the recordings (and a clip's pilot) there and reuse them, so a rule can be
     re-judged on the same files; `gain=False` skips the held-out speed simulation, which runs after
@@ -249,7 +259,7 @@ def run(
 
     # A library call must not leave the doctor without its held-out simulation for later callers.
     with heldout_gain_skipped() if not gain else contextlib.nullcontext():
-        _run(out, cases, variants, seconds, identify, cache)
+        _run(out, cases, variants, seconds, identify, cache, exposed_deadzone)
 
 
 def _run(
@@ -259,6 +269,7 @@ def _run(
     seconds: float,
     identify: dict[str, Any] | None,
     cache: Path | None,
+    exposed_deadzone: bool = False,
 ) -> None:
     from tvsd.sim.record import record
 
@@ -270,7 +281,8 @@ def _run(
             if case.seed in done:
                 continue
             cfg = case_config(case, identify)
-            case = sized(case, cfg, folder, seconds, keep=cache is not None)
+            keep = cache is not None
+            case = sized(case, cfg, folder, seconds, keep=keep, exposed_deadzone=exposed_deadzone)
             effects: tuple[Effect, ...] = (parse_effect(case.effect),) if case.effect else ()
             path = folder / f"case{case.seed}.csv"
             t0 = time.perf_counter()
@@ -351,8 +363,10 @@ def main() -> None:
             else:
                 print(L.table(rows, a.variant))
         return
-    global EXPOSED_DEADZONE
-    EXPOSED_DEADZONE = a.exposed_deadzone
+    names = tuple(a.variants.split(","))
+    unknown = [v for v in names if v not in VARIANTS]
+    if unknown:
+        ap.error(f"unknown variant(s) {', '.join(unknown)}: one of {', '.join(VARIANTS)}")
     sizes = tuple(float(x) for x in a.sizes.split(","))
     if a.cells:
         cases = plan_cells(a.reps, sizes, a.seed, a.nulls)
@@ -370,7 +384,8 @@ def main() -> None:
         cases = [c for c in cases if c.seed in chosen]
     mine = [c for k, c in enumerate(cases) if k % a.workers == a.worker]
     ident = json.loads(a.identify) if a.identify else None
-    run(a.out, mine, tuple(a.variants.split(",")), identify=ident, cache=a.cache, gain=not a.no_gain)
+    dz = a.exposed_deadzone
+    run(a.out, mine, names, identify=ident, cache=a.cache, gain=not a.no_gain, exposed_deadzone=dz)
 
 
 if __name__ == "__main__":
