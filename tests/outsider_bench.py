@@ -166,8 +166,8 @@ def simulate(
                 drive = ua / p[4]
             elif p[15] == 1.0:
                 drive = p[14] * ua
-            else:
-                drive = p[14] * ua / (p[2] * mult[3])
+            else:  # a torque command: the drive's current is τ/kM with the motor's nominal kM
+                drive = p[14] * ua / p[2]
             ext = torque[j]
             a1, b1 = _accel(w, i, z, phi, p, ext, mult)
             b1 += drive

@@ -121,3 +121,21 @@ def test_a_peak_at_the_bands_lower_edge_is_not_a_mode() -> None:
     edge = NoiseReport(0.5, 1.1, 0.3, 0.01, 0.1, freq, np.ones_like(freq), 44.5, 0.555, 8.4e5, 1.0, 46.9)
     assert spectral_cause(edge, 1e-3) is None
     assert spectral_cause(replace(edge, peak_hz=10.0), 1e-3) == "resonance"
+
+
+def test_a_torque_drive_passes_a_kM_drift_on() -> None:
+    """A torque (`N*m`) drive turns the command into a current with the motor's nominal kM, so a
+    drifting kM moves the torque it applies, as on a current (`A`) drive. The generator divided
+    by the drifted kM instead, which cancels the drift exactly: its N·m kM-drift cases (o07081)
+    held no effect at all (docs/measurements/outsidermiss.md). A −30 % drift over the record
+    leaves ≈ −27 % of the torque over its last tenth: the speed there falls by far more than the
+    1 % asked of it (the vibration is the same draw in both, so it cancels)."""
+    s = ob.draw(7081, "drift", 6.0)
+    s.seconds = 4.0
+    s.truth = {"name": "drift", "parameter": "kM", "relative_change": -0.3}
+    assert s.unit == "N*m"
+    drifted = ob.make(s)["omega"]
+    s.truth = {"name": "drift", "parameter": "kM", "relative_change": 0.0}
+    steady = ob.make(s)["omega"]
+    tail = slice(int(0.9 * len(steady)), None)
+    assert np.mean(np.abs(drifted[tail] - steady[tail])) > 0.01 * np.mean(np.abs(steady[tail]))
