@@ -108,21 +108,21 @@ def summary(paths: list[Path], cs: list[float]) -> None:
     rows = [json.loads(line) for p in paths for line in p.read_text().splitlines() if line.strip()]
     n = len(rows)
 
-    def rate(k: int) -> str:
-        lo, hi = cp95(k, n)
-        return f"{k}/{n} ({100 * k / n:.1f} %, 95 % CI {100 * lo:.1f}–{100 * hi:.1f} %)"
+    def rate(k: int, of: int = n) -> str:
+        lo, hi = cp95(k, of)
+        return f"{k}/{of} ({100 * k / of:.1f} %, 95 % CI {100 * lo:.1f}–{100 * hi:.1f} %)"
 
     named: dict[str, int] = {}
     for r in rows:
         named[str(r["named"])] = named.get(str(r["named"]), 0) + 1
-    print(f"named by the spectrum (this code): {named}")
+    print(f"named by the spectrum (the code that ran, its PEAK_FLOOR_C): {named}")
     cuts = sorted(float(r["cut_hz"]) for r in rows)
     spread = f"10–90 % {cuts[n // 10]:.1f}–{cuts[9 * n // 10]:.1f} Hz"
     print(f"colour band's top: median {cuts[n // 2]:.1f} Hz, {spread}")
     print(f"colour p < {COLOUR_P:g}, cut band: {rate(sum(r['colour_p'] < COLOUR_P for r in rows))}")
     whole = [r["colour_p_whole_band"] for r in rows if r.get("colour_p_whole_band") is not None]
     if whole:
-        print(f"colour p < {COLOUR_P:g}, whole band: {rate(sum(p < COLOUR_P for p in whole))}")
+        print(f"colour p < {COLOUR_P:g}, whole band: {rate(sum(p < COLOUR_P for p in whole), len(whole))}")
     for c in cs:
         k = sum(_peak_passes(r, c) for r in rows)
         above = sum(_peak_passes(r, c) and float(r["peak_hz"]) > float(r["cut_hz"]) for r in rows)
