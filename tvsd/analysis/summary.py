@@ -91,7 +91,7 @@ def period_warning(data: Any, cause: str, effect: dict[str, Any]) -> str | None:
 
 
 def _band(band: tuple[float, float] | None) -> list[float] | None:
-    return None if band is None else [float(band[0]), float(band[1])]
+    return None if band is None else [round(float(band[0]), 3), round(float(band[1]), 3)]  # Welch bins
 
 
 def floor_note(dg: Diagnosis) -> str | None:
@@ -239,7 +239,7 @@ def as_json(dg: Diagnosis, report: str | None = None) -> dict[str, Any]:
                 "colour": _band(dg.noise.colour_band_hz),
                 "peak": _band(dg.noise.peak_band_hz),
             },
-            "quantisation_floor_hz": dg.noise.floor_cut_hz,
+            "quantisation_floor_hz": None if (c := dg.noise.floor_cut_hz) is None else round(c, 3),
         },
         # chaotic only when λ1's confidence interval lies above zero (tvsd/analysis/lyapunov.py)
         "lyapunov": lyapunov(dg).as_json(),
