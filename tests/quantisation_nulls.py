@@ -12,6 +12,7 @@ null for the colour test without a fit (≈ 0.05 s per 30 s record instead of th
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -35,6 +36,9 @@ class Null:
     sigma_v: float
     seconds: float
     colour_tau_s: float = 0.0  # > 0: the vibration low-pass coloured (OU, τ) + a 0.3 white floor
+    mode_hz: float = 0.0  # > 0: a structural mode's acceleration added to the vibration's
+    mode_q: float = math.inf  # its Q (inf: a pure tone whose phase wanders, as the outsider's)
+    mode_size: float = 0.0  # its amplitude in units of the noise: m·1.5·σv (tests/outsider_bench.py)
 
 
 def draw(rng: np.random.Generator, seconds: float = 30.0, colour_tau_s: float = 0.0) -> Null:
@@ -66,6 +70,30 @@ def _profile(rng: np.random.Generator, kind: str, n: int, fs: float, top: float)
     return np.asarray(lfilter([a], [1.0, a - 1.0], raw, zi=[raw[0] * (1 - a)])[0])
 
 
+def with_mode(
+    null: Null, rng: np.random.Generator, size: float, lo_hz: float = 30.0, hi_hz: float = 90.0
+) -> Null:
+    """The null with a structural mode drawn as the outsider bench draws one: a pure tone half the
+    time, else Q log-uniform 31–208; its frequency uniform over [lo_hz, min(hi_hz, 0.2·fs)]."""
+    q = math.inf if rng.random() < 0.5 else 80.0 * 2.6 ** rng.uniform(-1.0, 1.0)
+    f0 = float(rng.uniform(lo_hz, min(hi_hz, 0.2 * null.fs)))
+    return dataclasses.replace(null, mode_hz=f0, mode_q=q, mode_size=size)
+
+
+def _mode(null: Null, rng: np.random.Generator, n: int) -> np.ndarray:
+    """The mode's acceleration per sample, amplitude m·1.5·σv (its rms that over √2), as
+    tests/outsider_bench.py makes its torque over J."""
+    h = 1.0 / null.fs
+    amp = null.mode_size * 1.5 * null.sigma_v
+    if math.isinf(null.mode_q):  # a tone whose phase wanders (0.02 Hz line width)
+        ph = np.cumsum(rng.standard_normal(n)) * math.sqrt(2 * math.pi * 0.02 * h)
+        return np.asarray(amp * np.sin(2 * np.pi * null.mode_hz * np.arange(n) * h + ph))
+    w0 = 2 * math.pi * null.mode_hz * h
+    r = math.exp(-w0 / (2 * null.mode_q))
+    x = lfilter([1.0], [1, -2 * r * math.cos(w0), r * r], rng.standard_normal(n))
+    return np.asarray(amp * x / (x.std() * math.sqrt(2)))
+
+
 def residual(
     null: Null, rng: np.random.Generator, gaps: bool = False
 ) -> tuple[np.ndarray, float, quantisation.Floor | None]:
@@ -94,6 +122,8 @@ def rows(null: Null, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, 
         d = math.exp(-h / null.colour_tau_s)
         white = 0.3 * null.sigma_v * math.sqrt(h) * rng.standard_normal(n)
         kick = lfilter([1.0 - d], [1.0, -d], kick) + white
+    if null.mode_hz > 0:
+        kick = kick + _mode(null, rng, n) * h
     w_vib = lfilter([1.0], [1.0, -decay], kick)
     w = w_det + w_vib
     phi = np.cumsum(w) * h  # φ[k] − φ[k−1] = ω[k]·h: ω is the period mean

@@ -41,6 +41,11 @@ PEAK_Q = 5.0  # a spectral peak this sharp is a structural mode; broader is a lo
 # 300 of 60 s; scripts/naming_peak_null.py): 99 % points 28.9 / 31.7, Gumbel 99.9 % points
 # 41.4 / 43.4, largest 44.8 / 36.1 — none above 45.
 PEAK_WHITE_LR = 45.0
+# With an encoder's quantisation floor the peak is sought over the whole band, the floor in its
+# model; the floor places the quantisation's lines only to within their width (1.2–2× in places on
+# a staircase), so a peak must also stand this many times above the floor at its centre.
+# Calibrated on randomised encoder nulls (docs/measurements/bandfloor.md).
+PEAK_FLOOR_C = 5.0
 
 
 @dataclass(frozen=True)
@@ -57,6 +62,10 @@ class NoiseReport:
     peak_q: float = math.nan
     peak_rms: float = math.nan  # the peak's share of the residual, rms (residual units)
     peak_white_lr: float = 0.0  # the same peak against the flat floor alone (χ², 3 dof)
+    peak_over_floor: float = math.inf  # the peak's height over the known quantisation floor at its centre
+    colour_band_hz: tuple[float, float] | None = None  # the bins the colour test saw (None: not run)
+    peak_band_hz: tuple[float, float] | None = None  # the bins the peak test saw (None: not run)
+    floor_cut_hz: float | None = None  # where the quantisation floor passes the flat level (None: nowhere)
 
 
 def spectral_cause(report: NoiseReport, p_value: float) -> str | None:
@@ -69,6 +78,7 @@ def spectral_cause(report: NoiseReport, p_value: float) -> str | None:
         and _flanked(report)
         and report.peak_white_lr > PEAK_WHITE_LR
         and report.peak_lr > chi2.isf(p_value, 2)
+        and report.peak_over_floor >= PEAK_FLOOR_C
     ):
         return "resonance"
     if report.colour_p < p_value:
@@ -130,29 +140,32 @@ def _whittle_peak(params: np.ndarray, f: np.ndarray, p: np.ndarray, known: np.nd
 
 def _peak(
     fm: np.ndarray, pm: np.ndarray, a0: float, b0: float, known: np.ndarray
-) -> tuple[float, float, float, float]:
+) -> tuple[float, float, float, float, float]:
     """Whittle fit of a flat + f² (+ the known quantisation) floor with one resonant (Lorentzian)
-    peak: (fun, f0, Q, power)."""
+    peak: (fun, f0, Q, power, height at f0)."""
     floor = a0 + b0 * fm**2 + known
-    k = int(np.argmax(pm / floor))
+    starts = [int(np.argmax(pm / floor))]
+    if np.any(known > 0):  # over the floor a single bin's scatter is large: also the 5-bin excess
+        starts.append(int(np.argmax(np.convolve(pm / floor, np.ones(5) / 5, mode="same"))))
     best = None
-    for q0 in (3.0, 10.0, 30.0):
-        start = [
-            math.log(a0),
-            math.log(b0),
-            math.log(max(pm[k] - floor[k], 1e-3 * floor[k])),
-            math.log(fm[k]),
-            math.log(q0),
-        ]
-        r = minimize(
-            _whittle_peak, start, args=(fm, pm, known), method="Nelder-Mead", options={"maxiter": 3000}
-        )
-        if best is None or r.fun < best.fun:
-            best = r
+    for k in dict.fromkeys(starts):
+        for q0 in (3.0, 10.0, 30.0):
+            start = [
+                math.log(a0),
+                math.log(b0),
+                math.log(max(pm[k] - floor[k], 1e-3 * floor[k])),
+                math.log(fm[k]),
+                math.log(q0),
+            ]
+            r = minimize(
+                _whittle_peak, start, args=(fm, pm, known), method="Nelder-Mead", options={"maxiter": 3000}
+            )
+            if best is None or r.fun < best.fun:
+                best = r
     assert best is not None
     _, _, A, f0, q = (math.exp(x) for x in best.x)
     power = A * math.pi * f0 / (2 * q)  # ∫ of the Lorentzian over f (narrow-peak limit)
-    return float(best.fun), f0, q, power
+    return float(best.fun), f0, q, power, A
 
 
 def effective_segments(segments: int, nper: int) -> float:
@@ -202,27 +215,41 @@ def _welch(residual: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray
     return f, p, max(1, 2 * len(residual) // nper - 1)  # 50 % overlap
 
 
-def _in_band(
+def _whole_band(
     f: np.ndarray, p: np.ndarray, band_hz: float, floor: Floor | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
-    """The band's bins, the known floor on them, and starting levels for a and b (the floor
-    taken off: it is not theirs to fit). With a floor, the band ends where the floor first
-    passes the flat level of the lowest bins: above, the residual is the quantisation's, whose
-    line structure the floor places only to within its width (a staircase's lines at 1–2× the
-    floor, tests/quantisation_nulls.py), and says nothing of the vibration's shape."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int]:
+    """The band's bins, the known floor on them, a starting level for a (the floor taken off: it
+    is not a's to fit), and the index of the first bin where the floor passes that flat level
+    (the number of bins when it never does)."""
     m = (f >= BAND_LOW_HZ) & (f <= 0.5 * band_hz)  # the band filter is flat to 1 % up to half its corner
     fm, pm = f[m], p[m]
     known = np.zeros_like(fm) if floor is None else np.asarray(floor(fm), dtype=float)
     k = max(3, len(pm) // 10)
     a0 = max(float(np.median((pm - known)[:k])), 1e-3 * float(np.median(pm[:k])), 1e-300)
     above = np.nonzero(known > a0)[0]
-    if len(above):
-        fm, pm, known = fm[: above[0]], pm[: above[0]], known[: above[0]]
-        k = max(3, len(pm) // 10)
+    return fm, pm, known, a0, int(above[0]) if len(above) else len(fm)
+
+
+def _slope(fm: np.ndarray, pm: np.ndarray, known: np.ndarray) -> float:
+    """A starting level for b (the f² term) from the band's top tenth, the known floor taken off."""
+    k = max(3, len(pm) // 10)
+    return max(float(np.median((pm - known)[-k:])) / fm[-1] ** 2, 1e-30)
+
+
+def _in_band(
+    f: np.ndarray, p: np.ndarray, band_hz: float, floor: Floor | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """The colour test's bins, the known floor on them, and starting levels for a and b. With a
+    floor, the band ends where the floor first passes the flat level of the lowest bins: above,
+    the residual is the quantisation's, whose line structure the floor places only to within its
+    width (a staircase's lines at 1–2× the floor, tests/quantisation_nulls.py), and says nothing
+    of the vibration's low-pass shape (docs/measurements/bandfloor.md: over the whole band the
+    colour test's nulls and detections)."""
+    fm, pm, known, a0, cut = _whole_band(f, p, band_hz, floor)
+    fm, pm, known = fm[:cut], pm[:cut], known[:cut]
     if len(fm) < MIN_SEEN_BINS:
         return fm, pm, known, a0, 1e-30
-    b0 = max(float(np.median((pm - known)[-k:])) / fm[-1] ** 2, 1e-30)
-    return fm, pm, known, a0, b0
+    return fm, pm, known, a0, _slope(fm, pm, known)
 
 
 def _colour_fits(fm: np.ndarray, pm: np.ndarray, known: np.ndarray, a0: float, b0: float) -> tuple[Any, Any]:
@@ -255,20 +282,40 @@ def spectrum_report(
     floor: Floor | None = None,
 ) -> NoiseReport:
     """The spectral tests on a Welch spectrum (f, p) of `segments` segments (a stored spectrum
-    can be re-judged without its residual)."""
-    fm, pm, known, a0, b0 = _in_band(f, p, band_hz, floor)
-    if len(fm) < MIN_SEEN_BINS:  # the band is the quantisation's: nothing to test
-        return NoiseReport(lb_p, 0.0, 1.0, 0.0, math.sqrt(a0 / 2) / J if J > 0 else math.nan, f, p)
-    white, best = _colour_fits(fm, pm, known, a0, b0)
-    # The colour's ratio on the effective segments (inflated ≈ 2.1× on the count: 11 of 300
-    # open-loop nulls were false alarms, 6 of them colour, docs/measurements/doctor-false-alarms.md); the
-    # peak's statistics keep the count: PEAK_WHITE_LR was calibrated on them.
-    lr = max(0.0, 2 * effective_segments(segments, 2 * (len(f) - 1)) * (white.fun - best.fun))
-    tau = math.exp(best.x[2])
-    # White Δv of intensity σv (eq. 12): one-sided PSD of J·Δv is 2·J²·σv².
-    sigma_v = math.sqrt(math.exp(white.x[0]) / 2) / J if J > 0 else math.nan
-    fun_peak, f0, q, power = _peak(fm, pm, a0, b0, known)
-    peak_lr = max(0.0, 2 * segments * (best.fun - fun_peak))
+    can be re-judged without its residual). The colour test stops where the quantisation's floor
+    passes the flat level (`_in_band`); the peak test runs over the whole band with the floor in
+    its model (a peak must stand PEAK_FLOOR_C× above it: `spectral_cause`)."""
+    fw, pw, kw, a0, cut = _whole_band(f, p, band_hz, floor)
+    cut_hz = float(fw[cut]) if cut < len(fw) else None
+    sigma0 = math.sqrt(a0 / 2) / J if J > 0 else math.nan
+    if len(fw) < MIN_SEEN_BINS:  # no band to test
+        return NoiseReport(lb_p, 0.0, 1.0, 0.0, sigma0, f, p, floor_cut_hz=cut_hz)
+    lr, tau, sigma_v, colour_band = 0.0, 0.0, sigma0, None
+    whole = None
+    if cut >= MIN_SEEN_BINS:  # else the colour's band is the quantisation's: no colour is told
+        fm, pm, known = fw[:cut], pw[:cut], kw[:cut]
+        b0 = _slope(fm, pm, known)
+        white, best = _colour_fits(fm, pm, known, a0, b0)
+        # The colour's ratio on the effective segments (inflated ≈ 2.1× on the count: 11 of 300
+        # open-loop nulls were false alarms, 6 of them colour, docs/measurements/doctor-false-alarms.md);
+        # the peak's statistics keep the count: PEAK_WHITE_LR was calibrated on them.
+        lr = max(0.0, 2 * effective_segments(segments, 2 * (len(f) - 1)) * (white.fun - best.fun))
+        tau = math.exp(best.x[2])
+        # White Δv of intensity σv (eq. 12): one-sided PSD of J·Δv is 2·J²·σv².
+        sigma_v = math.sqrt(math.exp(white.x[0]) / 2) / J if J > 0 else math.nan
+        colour_band = (float(fm[0]), float(fm[-1]))
+        if cut == len(fw):  # no floor cut: the colour's fits are the peak's alternatives
+            whole = (white, best, b0)
+    if whole is None:  # the peak's alternatives over the whole band, the known floor in both
+        b0w = _slope(fw, pw, kw)
+        whole = (*_colour_fits(fw, pw, kw, a0, b0w), b0w)
+    white_w, best_w, b0w = whole
+    fun_peak, f0, q, power, height = _peak(fw, pw, a0, b0w, kw)
+    # The peak's height as the spectrum shows it: a line narrower than the Hann window's noise
+    # bandwidth (1.5 bins) is spread over it, however large the fitted Lorentzian's top.
+    enbw = 1.5 * float(f[1] - f[0])
+    seen = height * min(1.0, math.pi * f0 / (2 * q) / enbw) if q > 0 else height
+    over = math.inf if floor is None else seen / max(float(floor(np.array([f0]))[0]), 1e-300)
     return NoiseReport(
         lb_p,
         lr,
@@ -277,9 +324,13 @@ def spectrum_report(
         sigma_v,
         f,
         p,
-        peak_lr,
+        max(0.0, 2 * segments * (best_w.fun - fun_peak)),
         f0,
         q,
         math.sqrt(max(power, 0.0)),
-        max(0.0, 2 * segments * (white.fun - fun_peak)),
+        max(0.0, 2 * segments * (white_w.fun - fun_peak)),
+        over,
+        colour_band,
+        (float(fw[0]), float(fw[-1])),
+        cut_hz,
     )

@@ -90,11 +90,29 @@ def period_warning(data: Any, cause: str, effect: dict[str, Any]) -> str | None:
     )
 
 
+def _band(band: tuple[float, float] | None) -> list[float] | None:
+    return None if band is None else [round(float(band[0]), 3), round(float(band[1]), 3)]  # Welch bins
+
+
+def floor_note(dg: Diagnosis) -> str | None:
+    """One short clause when the encoder's quantisation cut the colour test's band."""
+    n = dg.noise
+    if n.floor_cut_hz is None or n.peak_band_hz is None:
+        return None
+    colour = "not tested" if n.colour_band_hz is None else f"tested to {n.colour_band_hz[1]:.3g} Hz"
+    return (
+        f"above {n.floor_cut_hz:.3g} Hz the residual is the encoder's quantisation: noise colour "
+        f"{colour}, a structural mode to {n.peak_band_hz[1]:.3g} Hz"
+    )
+
+
 def sentence(dg: Diagnosis) -> str:
     warn = period_warning(dg.data, dg.cause, dg.effect)
     text = _sentence(dg)
     if warn:
         text = f"{text} Caution: {warn}."
+    if band := floor_note(dg):
+        text = f"{text} Note: {band}."
     if retimed := dg.data.meta.get("omega_timing"):
         text = f"{text} Note: {retimed}."
     return text
@@ -215,6 +233,13 @@ def as_json(dg: Diagnosis, report: str | None = None) -> dict[str, Any]:
             "ljung_box_p": dg.noise.ljung_box_p,
             "colour_p": dg.noise.colour_p,
             "tau_s": dg.noise.tau_s,
+            # the bins each spectral test saw, [low, high] Hz (None: not run); the colour test stops
+            # where an encoder's quantisation floor passes the flat level (`quantisation_floor_hz`)
+            "band_tested_hz": {
+                "colour": _band(dg.noise.colour_band_hz),
+                "peak": _band(dg.noise.peak_band_hz),
+            },
+            "quantisation_floor_hz": None if (c := dg.noise.floor_cut_hz) is None else round(c, 3),
         },
         # chaotic only when λ1's confidence interval lies above zero (tvsd/analysis/lyapunov.py)
         "lyapunov": lyapunov(dg).as_json(),

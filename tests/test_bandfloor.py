@@ -1,0 +1,71 @@
+"""The peak test over the whole band when an encoder's quantisation floor cuts the colour's band
+(tvsd.analysis.noise, docs/measurements/bandfloor.md)."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import quantisation_nulls as qn
+
+from tvsd.analysis import noise
+from tvsd.analysis import quantisation as Q
+from tvsd.analysis.summary import floor_note
+
+
+def _gated(null: qn.Null, seed: int) -> tuple[noise.NoiseReport, float]:
+    every, keep, prep = qn.rows(null, np.random.default_rng(seed))
+    rate = null.fs / prep.band.decim
+    resid, floor = Q.gated(prep, keep, every, rate)
+    return noise.analyse(resid, rate, 1.0, 100.0, floor), rate
+
+
+def test_a_mode_above_the_floor_crossing_is_named() -> None:
+    """A Q-80 mode at 40 Hz, 20× the noise (the outsider's largest size), on an 8192-count encoder
+    at 1 kHz, σv 0.1: the floor passes the flat level below 30 Hz, where the peak test stopped
+    before (never named); over the whole band, the floor in its model, it is named at its
+    frequency (within the Welch resolution's 0.25 Hz × 2), ≈ 19× the floor there."""
+    null = qn.Null(8192, 1000.0, "multisine", 8.0, 0.1, 30.0, mode_hz=40.0, mode_q=80.0, mode_size=20.0)
+    r, _ = _gated(null, 3)
+    assert r.floor_cut_hz is not None and r.floor_cut_hz < 30.0, r.floor_cut_hz  # the band was cut below it
+    assert r.colour_band_hz is not None and r.colour_band_hz[1] < 30.0
+    assert r.peak_band_hz is not None and r.peak_band_hz[1] == 50.0
+    assert noise.spectral_cause(r, 1e-3) == "resonance", (r.peak_hz, r.peak_q, r.peak_over_floor)
+    assert abs(r.peak_hz - 40.0) < 0.5
+
+
+def test_a_staircases_quantisation_line_is_not_a_mode() -> None:
+    """A seeded null of the calibration family (seed 4, case 30: 504 counts, a staircase at 1 kHz):
+    the quantisation's line at 15.9 Hz stands 4.5× above the floor's model of it, passes every other
+    peak gate, and so was named `resonance` with no floor constant; PEAK_FLOOR_C holds it."""
+    rng = np.random.default_rng([4, 30])
+    null = qn.draw(rng)
+    assert (null.counts, null.profile) == (504, "staircase")
+    every, keep, prep = qn.rows(null, rng)
+    rate = null.fs / prep.band.decim
+    resid, floor = Q.gated(prep, keep, every, rate)
+    r = noise.analyse(resid, rate, 1.0, 100.0, floor)
+    assert 1.0 < r.peak_over_floor < noise.PEAK_FLOOR_C  # the line is there, above the floor
+    assert noise.spectral_cause(r, 1e-3) is None
+
+
+def test_without_a_floor_both_tests_see_the_same_band() -> None:
+    """A tach's or tvsd's own speed (no floor): one band, no cut, the peak unbounded by a floor
+    (the code path before this change)."""
+    g = np.random.default_rng(1)
+    r = noise.analyse(g.standard_normal(7500), 250.0, 1.0, 100.0)
+    assert r.colour_band_hz == r.peak_band_hz == (0.5, 50.0)
+    assert r.floor_cut_hz is None and math.isinf(r.peak_over_floor)
+
+
+def test_the_sentence_says_where_the_floor_cut_the_band() -> None:
+    f = np.linspace(0, 125, 501)
+    cut = noise.NoiseReport(
+        0.5, 0.0, 1.0, 0.0, 0.1, f, np.ones_like(f),
+        colour_band_hz=(0.5, 17.25), peak_band_hz=(0.5, 50.0), floor_cut_hz=17.5,
+    )  # fmt: skip
+    text = floor_note(SimpleNamespace(noise=cut))  # type: ignore[arg-type]
+    assert text is not None and "17.5 Hz" in text and "17.2 Hz" in text and "50 Hz" in text
+    whole = noise.NoiseReport(0.5, 0.0, 1.0, 0.0, 0.1, f, np.ones_like(f), peak_band_hz=(0.5, 50.0))
+    assert floor_note(SimpleNamespace(noise=whole)) is None  # type: ignore[arg-type]
