@@ -53,6 +53,7 @@ RES_BAND = 0.8  # scan resonance up to this share of the analysis band
 CV_FOLDS = 5  # contiguous held-out folds of the out-of-sample confirmation
 FLOOR_HZ = 2.0  # the resonance scan's local spectrum: medians of blocks this wide
 NULL_CHUNK = 400  # line-scan null periodograms drawn this many at a time
+NULL_CHUNK_VALUES = 2_000_000  # and at most this many ordinates (16 MB per array)
 LEVERAGE_FLOOR = 0.05  # a bin the baseline takes ≥ 95 % of is not read for the noise level
 SPECTRUM_BINS = 21  # the null's noise spectrum: medians of blocks this many DFT bins wide
 
@@ -398,8 +399,12 @@ class LineScan:
         if not np.any(self.scan):
             return np.zeros(boot)
         peaks = []
-        for lo in range(0, boot, NULL_CHUNK):  # in chunks: boot × ordinates would be ~100 MB at once
-            E = 2.0 * rng.exponential(size=(min(NULL_CHUNK, boot - lo), len(self.f)))
+        # In chunks of whole periodograms (the generator's stream, so the draws, do not depend
+        # on the split), at most NULL_CHUNK_VALUES ordinates at once: a fixed count of
+        # periodograms grows with the record (400 × 450 000 ordinates, 1.4 GB per array, on 1 h).
+        chunk = max(1, min(NULL_CHUNK, NULL_CHUNK_VALUES // max(len(self.f), 1)))
+        for lo in range(0, boot, chunk):
+            E = 2.0 * rng.exponential(size=(min(chunk, boot - lo), len(self.f)))
             Z = E * 2.0 / np.maximum(_floor(E, self.width), 1e-300)
             peaks.append(np.max(Z[:, self.scan], axis=1))
         return np.concatenate(peaks)
