@@ -44,7 +44,7 @@ def test_the_line_scans_null_is_drawn_in_bounded_blocks() -> None:
     scan = C.LineScan(f, (f > 1.0) & (f < 80.0), 1601)
     tracemalloc.start()
     try:
-        peaks = scan.null_peaks(np.random.default_rng(3), 40)
+        scan.null_peaks(np.random.default_rng(3), 40)
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
@@ -102,3 +102,27 @@ def test_null_gram_from_blocks_is_the_stacked_ones_bit_for_bit(n: int) -> None:
     # plus the spectrum's few n-long vectors; five were held before
     g_bytes = 40 * n * 8
     assert peak - base <= 2.6 * g_bytes, f"{(peak - base) / g_bytes:.2f} × G"
+
+
+def test_a_recording_too_long_for_the_memory_is_refused_in_one_line() -> None:
+    """1 h at 2 kHz with 2 GiB free: refused before the analysis (exit 2), saying what it needs,
+    what is free and how many minutes would fit — not killed by the kernel part-way."""
+    from tvsd.analysis import memory
+    from tvsd.errors import DataFileError
+
+    long = _dataset(2000 * 3600, fs=2000.0)
+    with pytest.raises(DataFileError) as err:
+        memory.check(long, Band(), available=2048.0)
+    line = str(err.value)
+    assert "\n" not in line and "60.0 min at 2000 Hz" in line and "at most" in line, line
+    fit = float(line.split("at most ")[1].split(" min")[0])
+    # the stretch it proposes passes the same check
+    memory.check(_dataset(int(2000 * 60 * fit), fs=2000.0), Band(), available=2048.0)
+    memory.check(_dataset(60_000), Band(), available=2048.0)  # 60 s at 1 kHz: ~330 MiB
+
+
+def test_the_estimate_grows_linearly_with_the_record() -> None:
+    from tvsd.analysis import memory
+
+    one, ten = (memory.estimate_mib(60_000 * m, 1000.0, Band()) for m in (1, 10))
+    assert ten - memory.BASE_MIB == pytest.approx(10 * (one - memory.BASE_MIB), rel=1e-3)
