@@ -62,7 +62,9 @@ def sil(tmp_path_factory: pytest.TempPathFactory) -> tuple[np.ndarray, np.ndarra
 
 
 @pytest.mark.parametrize("samples", [0, 1, 3])
-def test_sil_speed_made_late_gives_the_full_scans_lag(sil: tuple[np.ndarray, np.ndarray], samples: int) -> None:
+def test_sil_speed_made_late_gives_the_full_scans_lag(
+    sil: tuple[np.ndarray, np.ndarray], samples: int
+) -> None:
     omega, phi = sil
     late = _late(omega, samples)
     old, old_share = _full_scan_lag(late, phi, 1000.0)

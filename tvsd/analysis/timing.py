@@ -80,7 +80,9 @@ def speed_lag(omega: np.ndarray, phi: np.ndarray, rate_hz: float) -> tuple[float
 
     def inner(grid: np.ndarray) -> np.ndarray:  # <ω advanced by λ, ω̄> per λ (Parseval, one-sided)
         per = max(1, INNER_VALUES // max(len(fk), 1))  # lags at a time: bounded memory
-        parts = [np.exp(2j * np.pi * np.outer(g, fk)) @ ck for g in np.array_split(grid, len(grid) // per + 1)]
+        parts = [
+            np.exp(2j * np.pi * np.outer(g, fk)) @ ck for g in np.array_split(grid, len(grid) // per + 1)
+        ]
         return np.real(np.concatenate(parts))
 
     coarse = np.arange(-MAX_LAG, MAX_LAG + GRID / 2, GRID)
