@@ -51,3 +51,28 @@ def test_parallel_matrix_answers_as_serial():
     assert parallel["doctor_open_workers"] == 2 and serial["doctor_open_workers"] == 1
     assert strip(parallel) == strip(serial)
     assert serial["doctor_open_cases"] == 4
+
+
+@pytest.mark.slow
+def test_doctor_long_reports_time_memory_and_the_estimate(capsys):
+    """`tvsctl bench --only doctor_long`: per size the wall, CPU and the child's own peak RSS of
+    `tvsctl analyze`, beside the doctor's estimate (tvsd.analysis.memory), which must not
+    undershoot the measured peak by more than the interpreter's scatter (±10 %)."""
+    import json
+
+    from tvsd.cli.main import main
+
+    assert main(["bench", "--only", "doctor_long", "--doctor-sizes", "20@1000,10@2000", "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    for key in ("doctor_long_20s_1khz", "doctor_long_10s_2khz"):
+        assert got[f"{key}_wall_s"] > 0 and got[f"{key}_cpu_s"] > 0, got
+        assert got[f"{key}_peak_rss_mib"] <= 1.1 * got[f"{key}_estimate_mib"], got
+
+
+def test_doctor_sizes_are_checked():
+    from tvsd.cli.bench import _sizes
+
+    assert _sizes("60@1000,3600@2000") == ((60.0, 1000.0), (3600.0, 2000.0))
+    for bad in ("60", "60@3000", "0@1000", "x@y"):
+        with pytest.raises(Exception, match="seconds@Hz"):
+            _sizes(bad)

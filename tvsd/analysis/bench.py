@@ -188,3 +188,56 @@ def _cpu_s() -> float:
     """CPU seconds of this process and its finished children (the pool's workers once joined)."""
     t = os.times()
     return t.user + t.system + t.children_user + t.children_system
+
+
+# A recording at a given rate: the default config with its SIL measurement's sample rate replaced.
+_RECORD_AT = """
+import dataclasses, sys
+from pathlib import Path
+from tvsd.causes import parse_effect
+from tvsd.config import load_config
+from tvsd.sim.record import record
+out, seconds, rate = Path(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
+cfg = load_config()
+sil = cfg.sil_or_default
+sil = dataclasses.replace(sil, measurement=dataclasses.replace(sil.measurement, sample_rate_hz=rate))
+cfg = dataclasses.replace(cfg, sil=sil)
+record(cfg, out, "steps", seconds, (parse_effect("deadzone:u0=0.8"),), seed=7)
+"""
+
+LONG_SIZES = ((60.0, 1000.0), (120.0, 2000.0))  # (seconds, Hz); 1 h at 1 and 2 kHz on request
+
+
+def bench_long(
+    sizes: tuple[tuple[float, float], ...] = LONG_SIZES, progress: Callable[[str], None] | None = None
+) -> dict[str, Any]:
+    """`tvsctl analyze` (warm) on a SIL staircase with a 0.8 V dead zone per (seconds, Hz): wall,
+    CPU and the child's own peak RSS, the doctor's memory estimate beside it, and the peak per
+    minute above the interpreter's (tvsd.analysis.memory.BASE_MIB). One run each: the 1 h ones
+    take minutes. A size the doctor refuses (not enough memory) is reported with its reason."""
+    from tvsd.analysis import memory
+    from tvsd.analysis.prep import Band
+
+    say = progress or (lambda _msg: None)
+    cli = [sys.executable, "-m", "tvsd.cli.main"]
+    out: dict[str, Any] = {"doctor_long_load_avg_at_start": round(os.getloadavg()[0], 1)}
+    with tempfile.TemporaryDirectory() as tmp:
+        env = {**os.environ, "NUMBA_CACHE_DIR": str(Path(tmp) / "numba-cache")}
+        for seconds, rate in sizes:
+            key = f"doctor_long_{seconds:g}s_{rate / 1000:g}khz"
+            rec = Path(tmp) / f"{key}.csv"
+            say(f"recording {seconds:g} s at {rate:g} Hz, then tvsctl analyze on it")
+            _child([sys.executable, "-c", _RECORD_AT, str(rec), f"{seconds:g}", f"{rate:g}"], env)
+            out[f"{key}_estimate_mib"] = round(memory.estimate_mib(round(seconds * rate), rate, Band()))
+            try:
+                wall, cpu, peak = _child([*cli, "analyze", str(rec), "--json", "--quiet"], env)
+            except RuntimeError as exc:  # refused (exit 2) or failed: said, not a crash of the suite
+                out[f"{key}_refused"] = str(exc)[-300:]
+                rec.unlink()
+                continue
+            rec.unlink()
+            out[f"{key}_wall_s"] = round(wall, 2)
+            out[f"{key}_cpu_s"] = round(cpu, 2)
+            out[f"{key}_peak_rss_mib"] = round(peak)
+            out[f"{key}_mib_per_min"] = round((peak - memory.BASE_MIB) / (seconds / 60.0), 1)
+    return out

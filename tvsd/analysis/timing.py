@@ -59,7 +59,11 @@ def speed_lag(omega: np.ndarray, phi: np.ndarray, rate_hz: float) -> tuple[float
     either, where the slope on the derivative was not (a 1-sample lag read 0.89, 3 read 2.65).
     The share says whether a shift is what separates them: ≥ 0.8 on SIL speeds made late by 1–3
     samples, ≤ 0.04 on a tach's noise or bench-dev's (docs/measurements/lagref.md). (nan, 0)
-    when there is nothing to compare."""
+    when there is nothing to compare.
+
+    The 0.05 grid is evaluated only near the peaks of the band-limited cross-correlation, found
+    on a grid of 1/`_upsampling` sample from one inverse FFT (memory O(n)); the whole scan by the
+    cross-spectrum cost lags × bins (125 MB per 32 lags on 1 h at 2 kHz, 321 lags)."""
     n = len(omega)
     corner = min(BAND_HZ, 0.4 * rate_hz)
     if n < 64:
@@ -70,15 +74,19 @@ def speed_lag(omega: np.ndarray, phi: np.ndarray, rate_hz: float) -> tuple[float
     wbar = filtfilt(b, a, reference_speed(omega, phi, rate_hz))[cut : n - cut]
     f = np.fft.rfftfreq(len(w))
     keep = f <= 1.5 * corner / rate_hz
-    cross = (np.fft.rfft(_detrended(w)) * np.conj(np.fft.rfft(_detrended(wbar))))[keep]
-    fk = f[keep]
+    cross = np.fft.rfft(_detrended(w)) * np.conj(np.fft.rfft(_detrended(wbar)))
+    cross[~keep] = 0.0
+    fk, ck = f[keep], cross[keep]
 
     def inner(grid: np.ndarray) -> np.ndarray:  # <ω advanced by λ, ω̄> per λ (Parseval, one-sided)
-        chunks = np.array_split(grid, len(grid) // 32 + 1)  # 32 lags at a time: bounded memory
-        parts = [np.exp(2j * np.pi * np.outer(g, fk)) @ cross for g in chunks]
+        per = max(1, INNER_VALUES // max(len(fk), 1))  # lags at a time: bounded memory
+        parts = [
+            np.exp(2j * np.pi * np.outer(g, fk)) @ ck for g in np.array_split(grid, len(grid) // per + 1)
+        ]
         return np.real(np.concatenate(parts))
 
     coarse = np.arange(-MAX_LAG, MAX_LAG + GRID / 2, GRID)
+    coarse = coarse[_near_peaks(cross, len(w), float(fk[-1]), coarse)]
     best = float(coarse[int(np.argmax(inner(coarse)))])
     fine = best + np.linspace(-GRID, GRID, 101)  # then to 0.001 sample around the best
     lag = float(fine[int(np.argmax(inner(fine)))])
@@ -87,6 +95,32 @@ def speed_lag(omega: np.ndarray, phi: np.ndarray, rate_hz: float) -> tuple[float
         return 0.0, 0.0
     left = float(np.sum((retimed(w, lag) - wbar)[EDGE:-EDGE] ** 2))
     return lag, max(0.0, 1.0 - left / before)
+
+
+INNER_VALUES = 1 << 20  # complex exponentials per block of the exact scan (16 MB)
+
+
+def _upsampling(f_top: float) -> int:
+    """Points per sample of the peak search: 8 or more per period of the band's top frequency
+    (cycles per sample), so every peak of the cross-correlation is a local maximum of the grid
+    within one grid step."""
+    return max(1, math.ceil(8.0 * f_top))
+
+
+def _near_peaks(cross: np.ndarray, n: int, f_top: float, lags: np.ndarray) -> np.ndarray:
+    """Which of `lags` lie within a grid step (+ GRID) of a local maximum of the cross-
+    correlation Re Σ_k cross_k·exp(2jπ k λ / n) on the grid λ = m/U, |λ| ≤ MAX_LAG: its
+    irfft, zero-padded to U·n (the sum's Hermitian weights shift it by the constant Re cross₀
+    only, which moves no maximum)."""
+    up = _upsampling(f_top)
+    corr = np.fft.irfft(cross, up * n)
+    m = np.arange(-math.ceil(MAX_LAG * up), math.ceil(MAX_LAG * up) + 1)
+    c = corr[m % (up * n)]
+    higher_left = np.concatenate([[True], c[1:] >= c[:-1]])
+    higher_right = np.concatenate([c[:-1] >= c[1:], [True]])
+    peaks = m[higher_left & higher_right] / up
+    reach = 1.0 / up + GRID
+    return np.any(np.abs(lags[:, None] - peaks[None, :]) <= reach + 1e-12, axis=1)
 
 
 def _detrended(x: np.ndarray) -> np.ndarray:

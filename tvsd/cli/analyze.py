@@ -45,6 +45,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from tvsd.analysis import memory
     from tvsd.analysis import report as R
     from tvsd.analysis.dataset import load
     from tvsd.analysis.doctor import COLOUR_P, diagnose
@@ -67,6 +68,9 @@ def _run(args: argparse.Namespace) -> int:
     data = load(args.file, cfg)
     heldout = load(args.heldout, cfg) if args.heldout else None
     band = EMPS_BAND if data.units.axis == "linear" else Band()
+    for dataset in (data, heldout):  # refused in one line where the doctor would not fit in memory
+        if dataset is not None:
+            memory.check(dataset, band)
     for dataset in (data, heldout):  # gap-filled rows (tvsctl export's `gap` column)
         note = None if dataset is None else check_filled(dataset, band)
         if note is not None:

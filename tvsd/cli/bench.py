@@ -104,6 +104,17 @@ def _doctor(args: argparse.Namespace) -> dict[str, Any]:
     )
 
 
+def _doctor_long(args: argparse.Namespace) -> dict[str, Any]:
+    from tvsd.analysis.bench import LONG_SIZES, bench_long
+    from tvsd.cli.progress import on_terminal
+
+    def say(message: str) -> None:
+        if on_terminal():
+            print(f"  doctor_long: {message}", file=sys.stderr, flush=True)
+
+    return bench_long(args.doctor_sizes or LONG_SIZES, progress=say)
+
+
 def _api() -> dict[str, Any]:
     from tvsd.daemon.bench import bench_point_latency
 
@@ -135,7 +146,11 @@ BENCHES: dict[str, Callable[..., dict[str, Any]]] = {
     "api": _api,
 }
 # Groups run only when named (--only): soak takes 10 min and loads every core.
-ON_REQUEST: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {"soak": _soak}
+# doctor_long: tvsctl analyze's wall time and peak memory by recording length (1 h: minutes each).
+ON_REQUEST: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
+    "soak": _soak,
+    "doctor_long": _doctor_long,
+}
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -202,7 +217,29 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         metavar="N",
         help="soak: RPC clients polling status (default 50; 0: the CPU hogs alone, no batches)",
     )
+    p.add_argument(
+        "--doctor-sizes",
+        type=_sizes,
+        metavar="S@HZ,...",
+        help="doctor_long: recordings to time, seconds@Hz (default 60@1000,120@2000; 1 h: 3600@1000)",
+    )
     p.set_defaults(func=_run)
+
+
+def _sizes(text: str) -> tuple[tuple[float, float], ...]:
+    """`60@1000,3600@2000` → ((60, 1000), (3600, 2000)); the rate must divide the 10 kHz loop."""
+    out = []
+    for part in text.split(","):
+        try:
+            s, hz = (float(x) for x in part.split("@"))
+        except ValueError:
+            s, hz = 0.0, 0.0
+        if not (1.0 <= s <= 86_400 and hz > 0 and (10_000 / hz).is_integer()):
+            raise argparse.ArgumentTypeError(
+                f"expected seconds@Hz (1 s to 24 h, a rate dividing 10 kHz), got {part!r}"
+            )
+        out.append((s, hz))
+    return tuple(out)
 
 
 def _words(value: Any) -> Any:

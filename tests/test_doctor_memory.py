@@ -1,0 +1,128 @@
+"""The doctor's memory grows with the record, by a stated amount per row (docs/measurements/docmem.md).
+
+Before: a 120 s, 2 kHz recording took 1.25 GB peak RSS and a 1 h one did not finish. Two
+consumers did not follow the rows: every candidate column was a strided view that kept its
+full-rate parent alive (4× the rows' memory), and the resonance scan's null drew 400
+periodograms at a time whatever their length (400 × 450 000 ordinates, 1.4 GB per array, on
+1 h at 1 kHz).
+"""
+
+from __future__ import annotations
+
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from tvsd.analysis import calibrate as C
+from tvsd.analysis.dataset import ROTARY, Dataset
+from tvsd.analysis.prep import Band, prepare
+
+
+def _dataset(n: int, fs: float = 1000.0) -> Dataset:
+    rng = np.random.default_rng(0)
+    t = np.arange(n) / fs
+    u = np.repeat(rng.uniform(-3, 3, n // 500 + 1), 500)[:n]
+    w = 50.0 + np.cumsum(rng.standard_normal(n)) * 0.01
+    return Dataset("mem", t, u, np.cumsum(w) / fs, w, fs, 1.0, 0.0, ROTARY, False)
+
+
+def test_a_column_of_rows_holds_only_its_rows() -> None:
+    """A decimated column is its own array: a view kept the full-rate filtered signal (decim ×
+    its size) alive as long as the candidate's block lived."""
+    prep = prepare(_dataset(40_000), Band())
+    col = prep.band_rows(np.sin(prep.data.position))
+    owned = col if col.base is None else col.base
+    assert owned.nbytes <= col.nbytes, f"{owned.nbytes} bytes kept for {col.nbytes}"
+
+
+def test_the_line_scans_null_is_drawn_in_bounded_blocks() -> None:
+    """The null's periodograms are drawn at most NULL_CHUNK_VALUES ordinates at a time, so its
+    peak allocation does not grow with the record (400 at a time: 400 × ordinates × 8 bytes per
+    array, several arrays), and the draws are the ones a single block gives (same stream)."""
+    f = np.fft.rfftfreq(400_000, 1 / 250.0)  # 800 s of 250 Hz rows
+    scan = C.LineScan(f, (f > 1.0) & (f < 80.0), 1601)
+    tracemalloc.start()
+    try:
+        scan.null_peaks(np.random.default_rng(3), 40)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    # a block of NULL_CHUNK_VALUES float64 ordinates, its floor, its ratio and the scanned part:
+    # 4 arrays of 16 MB, with room for the block's medians
+    assert peak <= 6 * 8 * C.NULL_CHUNK_VALUES, f"{peak / 2**20:.0f} MiB"
+    small = C.LineScan(f[:2001], scan.scan[:2001], 21)
+    rng = np.random.default_rng(3)
+    E = 2.0 * rng.exponential(size=(40, 2001))
+    whole = np.max((E * 2.0 / C._floor(E, 21))[:, small.scan], axis=1)
+    assert np.array_equal(small.null_peaks(np.random.default_rng(3), 40), whole)
+
+
+@pytest.mark.parametrize("boot", [1, 7])
+def test_a_short_null_is_unchanged(boot: int) -> None:
+    f = np.fft.rfftfreq(1000, 1 / 250.0)
+    scan = C.LineScan(f, f > 1.0, 21)
+    assert scan.null_peaks(np.random.default_rng(1), boot).shape == (boot,)
+
+
+def _null_gram_stacked(G: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """null_gram as it was (integ3 8d9900c): G stacked, its DFT, the weighted DFT, its conjugate."""
+    n = G.shape[0]
+    S = C.residual_spectrum(e, C.SPECTRUM_BINS, None)
+    F = np.fft.rfft(G, axis=0)
+    w = np.full(F.shape[0], 2.0)
+    w[0] = 1.0
+    if n % 2 == 0:
+        w[-1] = 1.0
+    Fw = F * (w * S)[:, None]
+    return np.real(Fw.conj().T @ F) / n
+
+
+@pytest.mark.parametrize("n", [3000, 3001])
+def test_null_gram_from_blocks_is_the_stacked_ones_bit_for_bit(n: int) -> None:
+    """The blocks transformed one by one give the gram of G stacked exactly (the bootstrap's
+    draws pass through its eigendecomposition, which amplifies round-off: BLAS's thread count
+    moved z by ~1 %), and the peak holds two DFT-sized arrays instead of five."""
+    rng = np.random.default_rng(2)
+    e = np.convolve(rng.standard_normal(n), [1.0, 0.6, 0.3], mode="same")
+    blocks = [rng.standard_normal((n, k)) for k in (2, 1, 5, 2)]
+    want = _null_gram_stacked(np.column_stack(blocks), e)
+    got = C.null_gram(list(blocks), e)
+    assert np.array_equal(got, want)
+    tracemalloc.start()
+    try:
+        listed = [rng.standard_normal((n, 1)) for _ in range(40)]
+        tracemalloc.reset_peak()
+        base, _ = tracemalloc.get_traced_memory()
+        C.null_gram(listed, e)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    # G is 40·n·8 bytes; its DFT the same in complex (n/2 + 1 rows): two of those at the peak,
+    # plus the spectrum's few n-long vectors; five were held before
+    g_bytes = 40 * n * 8
+    assert peak - base <= 2.6 * g_bytes, f"{(peak - base) / g_bytes:.2f} × G"
+
+
+def test_a_recording_too_long_for_the_memory_is_refused_in_one_line() -> None:
+    """1 h at 2 kHz with 2 GiB free: refused before the analysis (exit 2), saying what it needs,
+    what is free and how many minutes would fit — not killed by the kernel part-way."""
+    from tvsd.analysis import memory
+    from tvsd.errors import DataFileError
+
+    long = _dataset(2000 * 3600, fs=2000.0)
+    with pytest.raises(DataFileError) as err:
+        memory.check(long, Band(), available=2048.0)
+    line = str(err.value)
+    assert "\n" not in line and "60.0 min at 2000 Hz" in line and "at most" in line, line
+    fit = float(line.split("at most ")[1].split(" min")[0])
+    # the stretch it proposes passes the same check
+    memory.check(_dataset(int(2000 * 60 * fit), fs=2000.0), Band(), available=2048.0)
+    memory.check(_dataset(60_000), Band(), available=2048.0)  # 60 s at 1 kHz: ~330 MiB
+
+
+def test_the_estimate_grows_linearly_with_the_record() -> None:
+    from tvsd.analysis import memory
+
+    one, ten = (memory.estimate_mib(60_000 * m, 1000.0, Band()) for m in (1, 10))
+    assert ten - memory.BASE_MIB == pytest.approx(10 * (one - memory.BASE_MIB), rel=1e-3)
