@@ -69,3 +69,22 @@ def test_the_sentence_says_where_the_floor_cut_the_band() -> None:
     assert text is not None and "17.5 Hz" in text and "17.2 Hz" in text and "50 Hz" in text
     whole = noise.NoiseReport(0.5, 0.0, 1.0, 0.0, 0.1, f, np.ones_like(f), peak_band_hz=(0.5, 50.0))
     assert floor_note(SimpleNamespace(noise=whole)) is None  # type: ignore[arg-type]
+
+
+def test_a_peak_at_either_edge_of_the_tested_band_is_not_flanked() -> None:
+    """A Lorentzian at the band's top fits the quantisation floor's steep rise there as well as a
+    mode (a gapped encoder null's fitted 'mode' at 54.7 Hz, another at 49.8 Hz in a 50 Hz band):
+    two bins inside each edge, as at the bottom."""
+    f = np.linspace(0, 125, 3751)  # 1/30 Hz bins: a 30 s record
+    df = float(f[1] - f[0])
+
+    def at(hz: float) -> noise.NoiseReport:
+        return noise.NoiseReport(
+            0.5, 0.0, 1.0, 0.0, 0.1, f, np.ones_like(f), peak_hz=hz, peak_band_hz=(0.5, 49.8)
+        )
+
+    assert noise._flanked(at(30.0))
+    assert noise._flanked(at(49.8 - 2 * df))
+    assert not noise._flanked(at(49.8 - df))
+    assert not noise._flanked(at(54.7))
+    assert not noise._flanked(at(0.5 + df))

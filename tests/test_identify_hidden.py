@@ -93,7 +93,10 @@ def test_identify_export_analyze_names_the_hidden_imbalance(hidden_daemon, tmp_p
     # runs with omega from the frames, z -0.6-3.1 on the others).
     # No clip: the export's u shows every clip the drive makes (docs/measurements/doctor-method.md, step 8).
     if set(named) & SPURIOUS:
-        again, shown_again = _identify_and_analyze(sock, tmp_path / "identify-2.csv")
+        try:
+            again, shown_again = _identify_and_analyze(sock, tmp_path / "identify-2.csv")
+        except pytest.skip.Exception as stalled:  # no second judgement: the first one stands
+            pytest.fail(f"first: {shown} || second recording not judged: {stalled}")
         twice = set(named) & {c["cause"] for c in again["causes"]} & SPURIOUS
         assert not twice, f"first: {shown} || second: {shown_again}"
     if "delay" in named:

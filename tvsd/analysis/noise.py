@@ -87,11 +87,14 @@ def spectral_cause(report: NoiseReport, p_value: float) -> str | None:
 
 
 def _flanked(report: NoiseReport) -> bool:
-    """Whether the peak has bins of the band on both sides (two bins above its lower edge): at
-    the edge a Lorentzian fits a low-frequency rise as well as a mode, and no mode is told from
-    it (an outsider null's 'mode' at 0.555 Hz, Q 8e5, in a band that starts at 0.5 Hz)."""
+    """Whether the peak has bins of the band on both sides (two bins inside each edge of the
+    bins the peak test saw): at the lower edge a Lorentzian fits a low-frequency rise as well as
+    a mode (an outsider null's 'mode' at 0.555 Hz, Q 8e5, in a band that starts at 0.5 Hz); at
+    the upper edge, where an encoder's quantisation floor rises steeply, the rise of the floor
+    (a gapped encoder null's 'mode' at 54.7 Hz, outside its 50 Hz band; another at 49.8 Hz)."""
     df = float(report.freq[1] - report.freq[0]) if len(report.freq) > 1 else 0.0
-    return report.peak_hz >= BAND_LOW_HZ + 2 * df
+    low, high = report.peak_band_hz or (BAND_LOW_HZ, math.inf)
+    return max(low, BAND_LOW_HZ) + 2 * df <= report.peak_hz <= high - 2 * df
 
 
 def on_declared_line(report: NoiseReport, lines_hz: tuple[float, ...]) -> bool:

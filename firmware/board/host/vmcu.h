@@ -33,7 +33,7 @@ VMCU_API size_t vmcu_tx_bytes(uint8_t *buf, size_t max);
 /* Plant inputs. */
 VMCU_API void vmcu_set_encoder(int32_t count);
 /* The encoder from tick t0 to t1: linear from c0 to c1 counts (unwrapped), rounded at each control
- * tick strictly between them; vmcu_set_encoder (at t1) ends it. */
+ * tick strictly between them, and c1 at and after t1 until vmcu_set_encoder (at t1) ends it. */
 VMCU_API void vmcu_encoder_ramp(uint64_t t0, double c0, uint64_t t1, double c1);
 /* A sensor edge latched at tick t (t >= now: time advances to t first; t < now: the edge
  * was latched earlier, as the capture register does, and is reported now). */
