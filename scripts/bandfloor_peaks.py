@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 import quantisation_nulls as qn
 
 from tvsd.analysis import noise, quantisation
-from tvsd.analysis.doctor import COLOUR_P
+from tvsd.analysis.noise import COLOUR_P
 
 
 def cp95(k: int, n: int) -> tuple[float, float]:

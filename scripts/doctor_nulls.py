@@ -64,9 +64,9 @@ def _no_gain() -> None:
     decided and changes nothing of the verdict, and it is a third of an analysis's CPU."""
     import math as m
 
-    from tvsd.analysis import verdict
+    from tvsd.analysis import heldout_sim
 
-    verdict.heldout_speed = lambda *_a, **_k: (m.nan, m.nan, {}, {})  # type: ignore[assignment]
+    heldout_sim.heldout_speed = lambda *_a, **_k: (m.nan, m.nan, {}, {})  # type: ignore[assignment]
 
 
 def analyse(case: M.Case, seconds: float, folder: Path) -> dict[str, Any]:

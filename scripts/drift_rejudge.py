@@ -1,5 +1,5 @@
 """Re-judge stored matrix cases on the drift's trend test (after) and on the per-window refits
-before it (verdict.DRIFT_TREND_TEST False), from their cached recordings (branch drift).
+before it (drift.DRIFT_TREND_TEST False), from their cached recordings (branch drift).
 
     nice -n 5 .venv/bin/python scripts/drift_rejudge.py W/NW OUT.wW.jsonl LIST.json
 
@@ -17,7 +17,6 @@ from pathlib import Path
 
 from tvsd.analysis import drift as DF
 from tvsd.analysis import matrix as M
-from tvsd.analysis import verdict as V
 from tvsd.analysis.dataset import load
 from tvsd.analysis.doctor import diagnose
 from tvsd.analysis.matrix_open import _no_gain
@@ -41,17 +40,17 @@ for src in {t[0] for t in todo}:
             r = json.loads(l)
             rows[r["seed"]] = r
 trace = {}
-orig = V._drift_trend
+orig = DF.confirmed
 
 
 def both(design, o, parameter, sign):
     new = DF.agrees(design, o, parameter, sign)
-    old = V._drift_agrees(design, o, parameter, sign)
+    old = DF.window_refits_agree(design, o, parameter, sign)
     trace.update(new=new.agrees, old=bool(old), trend=new.as_dict(), parameter=parameter)
-    return new.agrees if V.DRIFT_TREND_TEST else bool(old)
+    return new.agrees if DF.DRIFT_TREND_TEST else bool(old)
 
 
-V._drift_trend = both
+DF.confirmed = both
 
 
 def run(data, cfg):
@@ -81,11 +80,11 @@ for src, seed, path in todo:
     row = {k: r[k] for k in FIELDS}
     row["seen"] = r.get("seen")
     row["stored"] = r["ls"]
-    V.DRIFT_TREND_TEST = True
+    DF.DRIFT_TREND_TEST = True
     row["ls"], row["ls_why"], tr = run(data, cfg)
     row["drift_trace"] = tr
     if tr and tr["new"] != tr["old"]:
-        V.DRIFT_TREND_TEST = False
+        DF.DRIFT_TREND_TEST = False
         row["before"], row["before_why"], _ = run(data, cfg)
     else:
         row["before"], row["before_why"] = row["ls"], row["ls_why"]

@@ -1,5 +1,5 @@
 """Nulls re-analysed with both confirmation rules logged: every call of the out-of-sample check
-(calibrate.heldout_gain) and of the drift's windows (verdict._drift_agrees) under the rule
+(crossval.heldout_gain) and of the drift's windows (drift.window_refits_agree) under the rule
 before branch heldout and after; the verdict follows the rule after.
 
     python scripts/null_confirmations.py ALPHA 'ROWS*.jsonl' RECORDINGS_DIR OUT.jsonl I/N
@@ -18,8 +18,9 @@ import sys
 from pathlib import Path
 
 from tvsd.analysis import calibrate as C
+from tvsd.analysis import crossval as CV
+from tvsd.analysis import drift as DF
 from tvsd.analysis import matrix as M
-from tvsd.analysis import verdict as V
 from tvsd.analysis.dataset import load
 from tvsd.analysis.doctor import diagnose
 from tvsd.analysis.matrix_open import _no_gain
@@ -33,35 +34,34 @@ out = sys.argv[4]
 shard, nshard = map(int, sys.argv[5].split("/"))
 orig_test = C.test_all
 C.test_all = functools.partial(orig_test, alpha=ALPHA)
-orig_hg = C.heldout_gain
+orig_hg = CV.heldout_gain
 calls = []
 
 
-def hg(design, o, X_ext, folds=C.CV_FOLDS):
-    C.SKIP_UNPINNED_FOLDS = False
+def hg(design, o, X_ext, folds=CV.CV_FOLDS):
+    CV.SKIP_UNPINNED_FOLDS = False
     old = orig_hg(design, o, X_ext, folds)
-    C.SKIP_UNPINNED_FOLDS = True
+    CV.SKIP_UNPINNED_FOLDS = True
     new = orig_hg(design, o, X_ext, folds)
     calls.append([X_ext.shape[1] - design.X.shape[1], round(old, 2), round(new, 2)])
     return new
 
 
-C.heldout_gain = hg
-orig_da = V._drift_agrees
+CV.heldout_gain = hg  # verdict and selection call it through the module
+orig_da = DF.window_refits_agree
 dcalls = []
 
 
 def da(*a, **k):
-    V.DRIFT_PINNED_WINDOWS = False
+    DF.DRIFT_PINNED_WINDOWS = False
     old = orig_da(*a, **k)
-    V.DRIFT_PINNED_WINDOWS = True
+    DF.DRIFT_PINNED_WINDOWS = True
     new = orig_da(*a, **k)
     dcalls.append([a[2], old, new])
     return new
 
 
-V._drift_agrees = da
-V.C.heldout_gain = hg
+DF.window_refits_agree = da
 done = set()
 if Path(out).exists():
     done = {json.loads(x)["seed"] for x in Path(out).read_text().splitlines()}

@@ -15,7 +15,7 @@ loop is left out, its command comes from the loop):
   shifted one also moves every other command by u0, which only reversals tell from Coulomb
   friction;
 - resonance: the mode's frequency against the top of the doctor's line scan
-  (RES_BAND × min(band corner, the rows' Nyquist), tvsd.analysis.calibrate / prep).
+  (RES_BAND × min(band corner, the rows' Nyquist), tvsd.analysis.linescan / prep).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 import outsider_bench as ob
 
-from tvsd.analysis.calibrate import RES_BAND
+from tvsd.analysis.linescan import RES_BAND
 from tvsd.analysis.prep import Band
 
 

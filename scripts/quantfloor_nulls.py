@@ -31,8 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 import quantisation_nulls as qn
 
 from tvsd.analysis import quantisation
-from tvsd.analysis.doctor import COLOUR_P
-from tvsd.analysis.noise import _in_band, _welch, colour_test
+from tvsd.analysis.noise import COLOUR_P, _in_band, _welch, colour_test
 
 
 def cp95(k: int, n: int) -> tuple[float, float]:

@@ -26,6 +26,7 @@ from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis import quantisation as Q
 from tvsd.analysis.dataset import ROTARY, Dataset
+from tvsd.analysis.gls import gls
 from tvsd.analysis.noise import _in_band, _welch, colour_test
 from tvsd.analysis.prep import Band, prepare
 
@@ -67,7 +68,7 @@ def main(seed: int) -> None:
     )
 
     def resid(y: np.ndarray, X: np.ndarray) -> np.ndarray:
-        return np.where(keep, y - X @ C.gls(y, X, out.ar, keep).theta, 0.0)
+        return np.where(keep, y - X @ gls(y, X, out.ar, keep).theta, 0.0)
 
     for tag, y, X in (
         ("coarse y, coarse X", dq.y, dq.X),

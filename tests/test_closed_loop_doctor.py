@@ -170,7 +170,7 @@ def test_a_closed_loop_case_whose_spin_up_fold_was_unpredictable_is_named(tmp_pa
     not determine the model (Coulomb friction and the misfit absorber's shapes are one constant
     there: rank-deficient, condition number 1.8e22), so its prediction of the spin-up was
     arbitrary (±1e9 noise units) and decided the check. Such a fold is now left out
-    (calibrate.heldout_gain). On the closed-loop plan's seed 0 (3× and 10×, 60 cases) this named
+    (crossval.heldout_gain). On the closed-loop plan's seed 0 (3× and 10×, 60 cases) this named
     6 cases more (resonance, cogging 2, imbalance, dead zone, saturation) and changed nothing
     else; this one (resonance 10×, σv 0.81, plan seed 5) was `none` before (`ls0`), its z 44 far
     above the threshold. Deterministic (fixed seeds): the old rule's `none` shows the test fails
@@ -203,7 +203,7 @@ def test_a_closed_loop_mode_the_law_answers_is_scanned_for(tmp_path: Path) -> No
     closed loop those were taken from the command, which also holds the law's answer to every
     disturbance — a structural mode's line among them — so a 59.8 Hz mode (its ordinate 1.9e4
     times the local level) was never scanned: `none` at z 1.3. The lines are now the speed
-    reference's (calibrate._excitation_rows). Closed-loop plan seed 0, case 45 (resonance 10×,
+    reference's (linescan.excitation_rows). Closed-loop plan seed 0, case 45 (resonance 10×,
     σv 0.08, 4 rev/s): `ls1` (the command's lines) names nothing, `ls` the mode; deterministic."""
     row = _plan_case_under(tmp_path, 45, "ls1")
     assert (row["ls"], row["ls1"]) == ("resonance", "none"), row

@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tvsd.analysis import calibrate, instrument
+from tvsd.analysis import calibrate, crossval, instrument, linescan
 from tvsd.analysis import design as D
 from tvsd.analysis.dataset import Dataset, load
 from tvsd.analysis.matrix_closed import VARIANTS
@@ -53,6 +53,8 @@ def test_the_rules_are_frozen_and_no_module_flag_is_left_to_leak() -> None:
     for module, flag in [
         (calibrate, "SKIP_UNDETERMINED_FOLDS"),
         (calibrate, "LINES_OF_REFERENCE"),
+        (crossval, "SKIP_UNDETERMINED_FOLDS"),
+        (linescan, "LINES_OF_REFERENCE"),
         (instrument, "IDENTIFIED_ONLY"),
         (instrument, "EXPECTED_MAPS"),
         (instrument, "IDENTIFIED_FOR"),
@@ -72,14 +74,14 @@ def identify8(tmp_path_factory: pytest.TempPathFactory) -> Dataset:
 
 
 def test_the_rules_on_the_design_reach_the_line_scan(identify8: Dataset) -> None:
-    """calibrate reads the line scan's rule from the design it is given: the reference's lines in
+    """The line scan reads its rule from the design it is given: the reference's lines in
     closed loop by default, the command's with lines_of_reference off (`ls0`, `ls1`)."""
     prep = prepare(identify8, Band())
     design = D.build(prep, identify8.offset_term, True)
     ref_rows = prep.band_rows(identify8.refs["omega_ref"])
-    assert np.array_equal(calibrate._excitation_rows(design)[0], ref_rows)
+    assert np.array_equal(linescan.excitation_rows(design)[0], ref_rows)
     design.rules = Rules(lines_of_reference=False)
-    assert np.array_equal(calibrate._excitation_rows(design)[0], design.X[:, 0])
+    assert np.array_equal(linescan.excitation_rows(design)[0], design.X[:, 0])
 
 
 def test_a_clips_exposed_units_are_measured_on_the_confirmations_rows(identify8: Dataset) -> None:

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from tvsd.analysis import calibrate as C
+from tvsd.analysis import linescan as L
 from tvsd.analysis.dataset import ROTARY, Dataset
 from tvsd.analysis.prep import Band, prepare
 
@@ -41,7 +42,7 @@ def test_the_line_scans_null_is_drawn_in_bounded_blocks() -> None:
     peak allocation does not grow with the record (400 at a time: 400 × ordinates × 8 bytes per
     array, several arrays), and the draws are the ones a single block gives (same stream)."""
     f = np.fft.rfftfreq(400_000, 1 / 250.0)  # 800 s of 250 Hz rows
-    scan = C.LineScan(f, (f > 1.0) & (f < 80.0), 1601)
+    scan = L.LineScan(f, (f > 1.0) & (f < 80.0), 1601)
     tracemalloc.start()
     try:
         scan.null_peaks(np.random.default_rng(3), 40)
@@ -50,18 +51,18 @@ def test_the_line_scans_null_is_drawn_in_bounded_blocks() -> None:
         tracemalloc.stop()
     # a block of NULL_CHUNK_VALUES float64 ordinates, its floor, its ratio and the scanned part:
     # 4 arrays of 16 MB, with room for the block's medians
-    assert peak <= 6 * 8 * C.NULL_CHUNK_VALUES, f"{peak / 2**20:.0f} MiB"
-    small = C.LineScan(f[:2001], scan.scan[:2001], 21)
+    assert peak <= 6 * 8 * L.NULL_CHUNK_VALUES, f"{peak / 2**20:.0f} MiB"
+    small = L.LineScan(f[:2001], scan.scan[:2001], 21)
     rng = np.random.default_rng(3)
     E = 2.0 * rng.exponential(size=(40, 2001))
-    whole = np.max((E * 2.0 / C._floor(E, 21))[:, small.scan], axis=1)
+    whole = np.max((E * 2.0 / L.block_floor(E, 21))[:, small.scan], axis=1)
     assert np.array_equal(small.null_peaks(np.random.default_rng(3), 40), whole)
 
 
 @pytest.mark.parametrize("boot", [1, 7])
 def test_a_short_null_is_unchanged(boot: int) -> None:
     f = np.fft.rfftfreq(1000, 1 / 250.0)
-    scan = C.LineScan(f, f > 1.0, 21)
+    scan = L.LineScan(f, f > 1.0, 21)
     assert scan.null_peaks(np.random.default_rng(1), boot).shape == (boot,)
 
 

@@ -62,9 +62,9 @@ def test_closed_loop_nulls_the_feedback_made_alarms_are_none(tmp_path, seed, ind
     which the bootstrap (conditioning on the regressors) does not represent.
 
     Seed 32, 59 and 89: a clip (z 6.5) and a dead zone (z 10.1) whose structural refits fitted
-    worse than the recorded command (LR −55 and −6.5 noise variances; verdict._structural_lr).
+    worse than the recorded command (LR −55 and −6.5 noise variances; refit.structural_lr).
     Seed 52, 158: a clip at z 25.1 whose refit fitted (LR 12) but which the instrumented design
-    puts at z 0.8 (doctor._instrumented_check). Seed 52, 128: `model_mismatch`, "negative
+    puts at z 0.8 (closed_checks.instrumented_check). Seed 52, 128: `model_mismatch`, "negative
     Coulomb friction" at 3+ standard errors — the feedback's bias, not in the errors (a delay at
     z 11.2 that dissolves tops it). Each case is checked to still put `cause` above the gate,
     else the test would pass without exercising the rule; no tolerance: the run is seeded."""

@@ -90,7 +90,7 @@ def _p(damping: float, tau_c: float) -> dict[str, float]:
 
 
 def test_sim_model_keeps_the_fitted_pair_only_one_way() -> None:
-    from tvsd.analysis.verdict import sim_model
+    from tvsd.analysis.heldout_sim import sim_model
 
     one_way = sim_model(_p(1.5e-3, -0.23), 7.5e-4, np.full(100, 157.0))
     assert (one_way.kv, one_way.tau_c) == (1.5e-3, -0.23)

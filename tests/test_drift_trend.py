@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tvsd.analysis import drift, verdict
+from tvsd.analysis import drift
 from tvsd.analysis import matrix as M
 from tvsd.analysis.matrix_open import plan
 
@@ -73,7 +73,7 @@ def test_windows_that_cannot_resolve_the_change_are_left_out_and_too_few_is_no_t
     [(310028, 31, (1.0, 3.0, 10.0, 30.0), (1.0,)), (330051, 33, (3.0, 10.0, 30.0), ())],
 )
 def test_matrix_drifts_the_per_window_refits_refused_are_named(tmp_path, seed, plan_seed, sizes, thin):
-    """Refused before by the per-window refits (verdict._drift_agrees: every baseline coefficient
+    """Refused before by the per-window refits (drift.window_refits_agree: every baseline coefficient
     refitted per 6 s window, an unweighted line through five): 310028, a 0.5 % kv drift at z 6.0
     (staircase), windows −1.8027 … −1.8102 ± 0.002 with the last one back up; 330051, a 15 %
     friction drift at z 53 (staircase), windows −8.55, −8.47, −8.78, −8.57, −8.95 — both t < 2.
@@ -94,11 +94,11 @@ def test_matrix_drifts_the_per_window_refits_refused_are_named(tmp_path, seed, p
     record(cfg, path, case.profile, 30.0, (parse_effect(case.effect),), case.seed)
     data = load(path, cfg)
     assert diagnose(data, cfg.plant.v0).cause == "drift"
-    verdict.DRIFT_TREND_TEST = False
+    drift.DRIFT_TREND_TEST = False
     try:
         assert diagnose(data, cfg.plant.v0).cause == "none"  # the rule before
     finally:
-        verdict.DRIFT_TREND_TEST = True
+        drift.DRIFT_TREND_TEST = True
 
 
 def test_an_r_drift_at_a_steady_speed_is_visible_only_as_the_friction_it_balances():

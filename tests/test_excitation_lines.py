@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from csv_helpers import square_wave_csv
 
-from tvsd.analysis import calibrate as C
+from tvsd.analysis import linescan
 from tvsd.analysis import matrix as M
 from tvsd.analysis.dataset import load
 from tvsd.analysis.doctor import diagnose
@@ -71,9 +71,9 @@ def test_the_line_scan_skips_declared_lines_only() -> None:
     t = np.arange(n) / fs
     rng = np.random.default_rng(4)
     e = rng.standard_normal(n) + 0.5 * np.sin(2 * math.pi * 8.0 * t)
-    plain = C._line_scan(e, [], fs, 100.0)
+    plain = linescan.line_scan(e, [], fs, 100.0)
     assert abs(plain.peak(e)[1] - 8.0) < 0.05  # undeclared, the excitation's line is the peak
-    scan = C._line_scan(e, [], fs, 100.0, (8.0,))
+    scan = linescan.line_scan(e, [], fs, 100.0, (8.0,))
     d, f0 = scan.peak(e)
     flat = 2.0 * float(e @ e) / n
     assert abs(f0 - 8.0) > 2 * fs / n and d < math.log(len(scan.f) / 0.001) * flat
@@ -83,12 +83,12 @@ def test_the_line_scan_skips_declared_lines_only() -> None:
 
 @pytest.fixture(scope="module")
 def no_gain():
-    from tvsd.analysis import verdict
+    from tvsd.analysis import heldout_sim
 
-    saved = verdict.heldout_speed
+    saved = heldout_sim.heldout_speed
     _no_gain()
     yield
-    verdict.heldout_speed = saved
+    heldout_sim.heldout_speed = saved
 
 
 def _case(seed: int, sigma_v: float, plant: dict[str, float], rps: float) -> M.Case:

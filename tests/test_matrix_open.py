@@ -86,7 +86,7 @@ def test_an_open_loop_drift_is_confirmed_by_windows_that_hold_the_friction_shape
     Stribeck and absorber shapes (a window's absorber coefficient 1.2e5 where the record's is 1.2,
     Coulomb −11.5…−17.9), so the drift's window check failed on drifts at z 18 and 9 (these two)
     and named `none`. The windows now refit the rigid columns with those shapes held at the
-    record's fit (verdict._drift_agrees): Coulomb −12.8 … −13.4 and damping −0.77 … −0.82, trends
+    record's fit (drift.window_refits_agree): Coulomb −12.8 … −13.4 and damping −0.77 … −0.82, trends
     at t 3.1 and 3.5 (> 2). Open-loop plan seed 31 (tvsd.analysis.matrix_open): 310030 friction
     +5 % (10×, 7 noise units, staircase, σv 0.08), 310031 kv +15 % (30×, 4 noise units, PRBS/
     multisine, σv 0.34). Deterministic (seeded recording and bootstrap)."""
@@ -107,9 +107,9 @@ def test_strong_causes_are_not_refused_by_a_fold_or_window_the_others_do_not_pin
     variances against the record's whole evidence D 5.7e3), both predictions off by ~1e4 per
     row, −7.7e6 there against +2.5e3 on the other four; 340132, a 30× friction asymmetry whose
     direction-split columns only one fold pins (P_f 5e14, gain −3.8e12); now such folds are
-    left out (calibrate.heldout_gain). 340273, a 1.5 % R drift at z 61: one 6 s window read
+    left out (crossval.heldout_gain). 340273, a 1.5 % R drift at z 61: one 6 s window read
     the input gain −46 ± 44 among 8.19–8.27 ± 0.01 (the drift moves it by 0.12) and the trend
-    through the five failed; such a window is now left out (verdict._trend_agrees).
+    through the five failed; such a window is now left out (drift.trend_agrees).
     Deterministic (seeded recording and bootstrap)."""
     case = next(c for c in plan(10, (3.0, 10.0, 30.0), plan_seed, thin=()) if c.seed == seed)
     assert M.run_case(case, 30.0, tmp_path)["found"] == case.cause
@@ -121,21 +121,21 @@ def test_the_drift_trend_leaves_out_a_window_that_cannot_resolve_the_change():
     window's error under the change is kept, and the trend is judged as before (slope beyond
     twice its error from the scatter): a flat record has no trend either way. Values from the
     open-loop matrix, seed 34, case 340273 (a 1.5 % R drift at z 61)."""
-    from tvsd.analysis import verdict
+    from tvsd.analysis import drift
 
     x = np.array([3.0, 9.0, 15.0, 21.0, 27.0])
     y = np.array([-46.0, 8.2705, 8.2301, 8.2168, 8.1944])
     var = np.array([43.6, 0.00958, 0.011, 0.00879, 0.00801]) ** 2
-    assert verdict._trend_agrees(x, y, var, sign=-0.117)
-    assert not verdict._trend_agrees(x, y, var, sign=+0.117)
+    assert drift.trend_agrees(x, y, var, sign=-0.117)
+    assert not drift.trend_agrees(x, y, var, sign=+0.117)
     flat = np.array([1.0, 1.01, 0.99, 1.0, 1.005])
-    assert not verdict._trend_agrees(x, flat, np.full(5, 0.001**2), sign=-0.05)
+    assert not drift.trend_agrees(x, flat, np.full(5, 0.001**2), sign=-0.05)
     # counted, the window that cannot resolve the change refused the drift (the rule before)
-    verdict.DRIFT_PINNED_WINDOWS = False
+    drift.DRIFT_PINNED_WINDOWS = False
     try:
-        assert not verdict._trend_agrees(x, y, var, sign=-0.117)
+        assert not drift.trend_agrees(x, y, var, sign=-0.117)
     finally:
-        verdict.DRIFT_PINNED_WINDOWS = True
+        drift.DRIFT_PINNED_WINDOWS = True
 
 
 def test_an_angle_periodic_cause_over_less_than_its_period_is_scored_apart():

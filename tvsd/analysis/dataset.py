@@ -116,7 +116,7 @@ def load(path: Path, cfg: Config) -> Dataset:
         u = u * float(rec.meta["u_scale"])
     if rec.meta.get("u_sampling") == "hold" and len(u) > 1:
         # Held from its sample on, u[k] acts over (t_k, t_k+1]: the interval that ends at t_k+1,
-        # which tvsd's convention (verdict._convention_unpinned) calls row k+1.
+        # which tvsd's convention (refit.convention_unpinned) calls row k+1.
         u = np.concatenate([u[:1], u[:-1]])
     if unit in ("V", "duty"):
         b_u, b_omega, lag_s = p.kM * p.ku / p.R, p.kM * p.kb / p.R, p.L / p.R

@@ -2,18 +2,23 @@
 
 1. Sense of the input (tvsd.analysis.sense): too short, constant, absurd → one line, exit 2.
 2. Baseline: the paper's rigid model with every coefficient free (tvsd.analysis.design), so the
-   motor need not be the config's; fitted by generalised least squares under an AR noise model.
+   motor need not be the config's; fitted by generalised least squares under an AR noise model
+   (tvsd.analysis.gls), its coefficients read as the paper's parameters (tvsd.analysis.physical).
 3. Decision (tvsd.analysis.calibrate): every cause is an extension nesting the baseline; each is
    scored by its likelihood ratio, standardised by its own null distribution (parametric
    bootstrap from the fitted baseline and its noise), and the best is named only above the
    (1 − α) point of the bootstrap maxima. α = 1 %: the false-alarm rate, by construction.
-4. Physical sense of what would be reported (sense.py): a baseline or a best extension with a
-   negative inertia, a threshold outside the commands, … → `model_mismatch` and the reason.
+4. Naming (tvsd.analysis.verdict), with the physical sense of what would be reported (sense.py):
+   a baseline or a best extension with a negative inertia, a threshold outside the commands, … →
+   `model_mismatch` and the reason. In closed loop a command-side cause, and a residual peak, are
+   checked on the instrumented design too (tvsd.analysis.closed_checks).
 5. Noise colour, when no deterministic cause is named: Whittle's likelihood ratio of a low-pass
    against a flat vibration spectrum on the residual rows (tvsd.analysis.noise).
 6. Gain: the baseline and the extension fitted without the held-out part (the last third, or
    the whole file with --heldout), simulated from the recorded command there (restarted from the
-   measured state every SIM_WINDOW_S), and their speed errors compared.
+   measured state every SIM_WINDOW_S), and their speed errors compared (tvsd.analysis.heldout_sim).
+
+This module orchestrates those steps and assembles the Diagnosis.
 """
 
 from __future__ import annotations
@@ -26,35 +31,23 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from tvsd.analysis import absorber, instrument, quantisation, selection, sense
+from tvsd.analysis import absorber, heldout_sim, instrument, quantisation, selection, sense
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
+from tvsd.analysis.closed_checks import LOOP_PEAK, closed_loop_note, instrumented_check, peak_in_plant
 from tvsd.analysis.dataset import Dataset
-from tvsd.analysis.noise import NoiseReport, analyse, on_declared_line, spectral_cause
+from tvsd.analysis.gls import gls
+from tvsd.analysis.noise import COLOUR_P, NoiseReport, analyse, on_declared_line, spectral_cause
+from tvsd.analysis.physical import physical, reduced
 from tvsd.analysis.prep import Band, prepare
 from tvsd.analysis.rules import DEFAULT, Rules
-from tvsd.analysis.simulate import ReducedModel, simulate
-from tvsd.causes import Effect
-from tvsd.model import effects as E
+from tvsd.analysis.simulate import ReducedModel
+from tvsd.analysis.verdict import Scored, name_cause
 
-HOLDOUT_SPLIT = 2 / 3
-SIM_WINDOW_S = 1.0
-COLOUR_P = 1e-3  # the noise colour's likelihood ratio (χ², 1 dof) must beat this p-value
 ALPHA = C.ALPHA
 INPUT_CAUSES = ("deadzone", "saturation", "delay")
 
 Progress = Callable[[str], None]
-
-
-@dataclass(frozen=True)
-class Scored:
-    cause: str
-    effect: dict[str, Any]
-    z: float  # likelihood ratio standardised by its own bootstrap null
-    p: float  # bootstrap p-value of this cause alone
-    significant: bool
-    heldout_gain_pct: float = math.nan
-    why_not: tuple[str, str] | None = None  # (code, sentence) when not named (verdict.WHY)
 
 
 @dataclass
@@ -83,57 +76,6 @@ class Diagnosis:
         if not self.heldout_rmse_base or not math.isfinite(self.heldout_rmse_ext):
             return 0.0
         return 100.0 * (1.0 - self.heldout_rmse_ext / self.heldout_rmse_base)
-
-
-def _physical(
-    design: D.Design, theta: np.ndarray, cov: np.ndarray, b_u: float, b_omega: float
-) -> tuple[dict[str, float], dict[str, float]]:
-    """Accelerations per unit column → the paper's parameters: J from the drive's input gain.
-
-    The input gain is a₀ + a₁: the two columns (u now and one sample later) are nearly collinear,
-    so their coefficients are strongly anti-correlated and the sum's standard error is far below
-    either one's — it needs the covariance, not the two standard errors."""
-    v = dict(zip(design.names, theta, strict=False))
-    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    s = dict(zip(design.names, se, strict=False))
-    a = v["a0"] + v["a1"]
-    i0, i1 = design.names.index("a0"), design.names.index("a1")
-    se_a = math.sqrt(max(float(cov[i0, i0] + cov[i1, i1] + 2 * cov[i0, i1]), 0.0))
-    J = b_u / a if a != 0 else math.nan
-    p = {
-        "input_gain": a,
-        "J": J,
-        "damping": -v["c"] * J,  # viscous + back-EMF, effort per unit speed
-        "kv": -v["c"] * J - b_omega,  # viscous alone, with the config's back-EMF
-        "tau_c": -v["f"] * J,
-        "d_stribeck": -v["s"] * J,
-        "v0": design.v0,
-        "offset": -v.get("b", 0.0) * J,
-        "time_constant_s": 1.0 / max(-v["c"], 1e-12),
-    }
-    err = {
-        "damping": abs(s["c"] * J),
-        "tau_c": abs(s["f"] * J),
-        "J": abs(J) * se_a / abs(a) if a != 0 else math.inf,
-        "input_gain": se_a,
-    }
-    return p, err
-
-
-def _reduced(p: dict[str, float], b_u: float, extra: dict[str, float] | None = None) -> ReducedModel:
-    extra = extra or {}
-    return ReducedModel(
-        J=p["J"] if p["J"] > 0 else 1e-9,
-        kv=max(p["damping"], 0.0),
-        tau_c=max(p["tau_c"], 0.0),
-        d_stribeck=max(p["d_stribeck"], 0.0),
-        v0=p["v0"],
-        offset=p["offset"],
-        b_u=b_u,
-        b_omega=0.0,
-        kv_neg_scale=extra.get("kv_neg_scale", 1.0),
-        tc_neg_scale=extra.get("tc_neg_scale", 1.0),
-    )
 
 
 def diagnose(
@@ -191,7 +133,7 @@ def _diagnose(
         design = absorber.absorb(instrumented)
         design.rules = rules
     design.back_emf = data.b_omega > 0 or data.u_unit == "V"
-    note = _closed_loop_note(data)
+    note = closed_loop_note(data)
     if note is not None:
         # In closed loop the command answers the noise; a map of the command (threshold, clip,
         # delay) is identifiable only through an excited reference, so without one it is not
@@ -205,13 +147,11 @@ def _diagnose(
         )
     say("testing every cause against the bootstrap null of the fitted baseline")
     out = C.test_all(design, seed=seed)
-    fit = C.gls(design.y, design.X, out.ar, out.keep)
+    fit = gls(design.y, design.X, out.ar, out.keep)
     # The drive's parameters (and their physical checks) from the rigid model alone (a SIL
     # identify export's kv came out < 0 with the absorber's shapes in the fit).
-    rigid = C.gls(design.y, absorber.rigid(design, design.X)[0], out.ar, out.keep)
-    params, err = _physical(design, rigid.theta, rigid.cov, data.b_u, data.b_omega)
-    from tvsd.analysis.verdict import name_cause  # the per-cause translation (effects, checks)
-
+    rigid = gls(design.y, absorber.rigid(design, design.X)[0], out.ar, out.keep)
+    params, err = physical(design, rigid.theta, rigid.cov, data.b_u, data.b_omega)
     say("naming the cause and checking it makes physical sense")
     closed_ls = "omega_ref" in data.refs and design is measured
     verdict = name_cause(
@@ -223,7 +163,7 @@ def _diagnose(
         data,
         drive_identifiable=note is None,
         friction_judged=not closed_ls,
-        instrumented=_instrumented_check(prep, data, rotary, measured, seed, rules) if closed_ls else None,
+        instrumented=instrumented_check(prep, data, rotary, measured, seed, rules) if closed_ls else None,
     )
     say("testing the noise colour")
     rate_rows = 1.0 / float(np.median(np.diff(prep.t_rows)))
@@ -249,7 +189,7 @@ def _diagnose(
     peak = peak and not on_declared_line(noise, data.excitation_hz)  # the excitation's own line
     peak_amp = abs(J) * math.sqrt(2.0) * noise.peak_rms
     refuse = cause == "none" and peak and closed_ls
-    if refuse and not _peak_in_plant(prep, data, rotary, measured, out.keep, noise, rules):
+    if refuse and not peak_in_plant(prep, data, rotary, measured, out.keep, noise, rules):
         # Closed loop by least squares: a peak the instrumented fit does not leave is not the plant's.
         loop = {"frequency_hz": noise.peak_hz, "amplitude": peak_amp, "q": noise.peak_q}
         p_peak = float(chi2.sf(noise.peak_lr, 2))
@@ -277,16 +217,17 @@ def _diagnose(
     causes = _causes(design, out, verdict, cause, effect, ranked, params, err, data, seed, say)
     effect = causes[0].effect if causes else effect  # with its amplitude's standard error
     say("simulating baseline and extension on the held-out data")
-    from tvsd.analysis.verdict import heldout_speed
-
-    rmse_b, rmse_e, ext_params, sim = heldout_speed(design, out, data, heldout, band, cause, effect, verdict)
+    # Through the module: the matrix tools skip it (matrix_open.heldout_gain_skipped).
+    rmse_b, rmse_e, ext_params, sim = heldout_sim.heldout_speed(
+        design, out, data, heldout, band, cause, effect, verdict
+    )
     return Diagnosis(
         data,
         design,
         out,
         params,
         err,
-        _reduced(params, data.b_u),
+        reduced(params, data.b_u),
         ranked,
         cause,
         effect,
@@ -362,119 +303,3 @@ def _causes(
         return [first]
     say("testing the other causes against the model extended by the named one")
     return [first, *selection.further(design, verdict, params, err, data, seed)]
-
-
-def _instrumented_check(
-    prep: Any, data: Dataset, rotary: bool, measured: D.Design, seed: int, rules: Rules = DEFAULT
-) -> Callable[[str], bool] | None:
-    """Closed loop by least squares, with an excited reference: whether a command-side cause
-    also passes the decision on the instrumented design (tvsd.analysis.instrument: every
-    command and speed column from the reference's and identify's PRBS prediction, the left side
-    cleaned to the structural residual), built once, on demand.
-
-    The law answers the noise, so the measured command correlates with the equation's error:
-    the bootstrap, which conditions on the regressors, is not the null of the least-squares
-    command blocks (a clip at z 25.1 and a dead zone at z 5.4 on identify nulls, where the
-    structural refits fitted too). The instrumented columns are functions of signals the noise
-    does not move, so the same bootstrap is their null (the same two: z 0.8 and −0.1; the
-    matrix's closed-loop clips and delays stay far above the gate: 293 and 83–1406)."""
-    if not instrument.excited(data):
-        return None
-    memo: dict[tuple[bool, bool, bool], C.Outcome] = {}
-
-    def holds(cause: str) -> bool:
-        # Per cause (rules.identified_for, expected_for; docs/measurements/closedsat.md): the
-        # clip's block as E[f(u) | instruments], θ_IV along identified directions only.
-        key = (
-            cause in rules.identified_for or rules.identified_only,
-            cause in rules.expected_for or rules.expected_maps,
-            cause in rules.spin_only_for,
-        )
-        if key not in memo:
-            ident, expect, spin = key
-            iv, _ = instrument.instrumented(prep, data.offset_term, rotary, expected=expect, spin_only=spin)
-            iv = absorber.absorb(iv)
-            iv.back_emf = measured.back_emf
-            iv.rules = rules
-            iv.y = instrument.structural_left_side(iv, measured, identified_only=ident)
-            memo[key] = C.test_all(iv, seed=seed)
-        out = memo[key]
-        return any(t.cause == cause and t.z > out.threshold for t in out.tested)
-
-    return holds
-
-
-LOOP_PEAK = (
-    "loop_peak",
-    "closed loop: the residual's peak is not in the residual of the instrumented fit (the reference "
-    "as instrument), so it is the loop's answer to the noise that least squares on the measured "
-    "command leaves, not a mode of the plant",
-)
-
-
-def _peak_in_plant(
-    prep: Any,
-    data: Dataset,
-    rotary: bool,
-    measured: D.Design,
-    keep: np.ndarray,
-    noise: NoiseReport,
-    rules: Rules = DEFAULT,
-) -> bool:
-    """Whether a residual peak of a closed-loop least-squares fit is the plant's: the law feeds
-    the measured noise back into the command, so least squares on that command is biased and its
-    residual keeps a share of the loop's answer to the noise — S = 1/(1 + PC) shaped, peaked at
-    the loop's own mode when it is underdamped (an outsider PI loop's 10.6 Hz on a null,
-    docs/measurements/loopmode.md). The instrumented fit's residual (y − X·θ_IV) is the
-    equation's own error: a mode of the plant is a torque in it and stays; the bias, and with it
-    the loop's peak, goes. The peak must be there too, within its half-power band."""
-    if not instrument.excited(data):
-        return False  # nothing to instrument with: a peak is not told from the loop's
-    iv, _ = instrument.instrumented(prep, data.offset_term, rotary, expected=rules.expected_maps)
-    resid = instrument.structural_residual(absorber.absorb(iv), measured)
-    if resid is None:
-        return False
-    rate = 1.0 / float(np.median(np.diff(prep.t_rows)))
-    gated, floor = quantisation.gated(prep, keep, resid, rate)
-    again = analyse(gated, rate, 1.0, prep.band.cutoff_hz, floor)
-    if spectral_cause(again, COLOUR_P) != "resonance":
-        return False
-    df = float(noise.freq[1] - noise.freq[0]) if len(noise.freq) > 1 else 0.0
-    half = max(noise.peak_hz / (2.0 * noise.peak_q), df) if noise.peak_q > 0 else df
-    return abs(again.peak_hz - noise.peak_hz) <= half
-
-
-def _closed_loop_note(data: Dataset) -> str | None:
-    if "omega_ref" not in data.refs or instrument.reference_moves(data):
-        return None
-    return (
-        "closed loop with a constant reference: dead zone, saturation and delay are not testable "
-        "(the command answers the noise); record with reference steps (tvsctl identify)"
-    )
-
-
-def simulate_speed(
-    model: ReducedModel,
-    data: Dataset,
-    command: np.ndarray,
-    eff: np.ndarray | None,
-    window_s: float = SIM_WINDOW_S,
-) -> np.ndarray:
-    speed = data.speed if data.speed is not None else np.gradient(data.position, data.t)
-    w, _ = simulate(
-        model, data.t, command, E.neutral() if eff is None else eff, speed, data.position, window_s
-    )
-    return w
-
-
-def effect_array(cause: str, effect: dict[str, Any]) -> np.ndarray | None:
-    keep = {
-        "imbalance": ("amplitude", "phase"),
-        "cogging": ("order", "amplitude", "phase"),
-        "resonance": ("frequency_hz", "amplitude", "phase"),
-        "saturation": ("u_max",),
-        "deadzone": ("u0",),
-    }.get(cause)
-    if keep is None:
-        return None
-    return E.pack([Effect(cause, {k: effect[k] for k in keep if k in effect})])

@@ -71,7 +71,7 @@ def confirmation_baseline(
     data: Dataset, cause: str = "saturation", rules: Rules = DEFAULT
 ) -> Baseline | None:
     """The rows and baseline columns on which the closed-loop confirmation judges `cause`
-    (doctor._instrumented_check): the rows of its instrumented design (moving, after the
+    (closed_checks.instrumented_check): the rows of its instrumented design (moving, after the
     spin-up: instrument.steady_start, spin_only as `rules` say), the doctor's measured baseline
     columns (design.build with the absorber's shapes) on them. None where there is no
     confirmation (no excited reference)."""

@@ -26,7 +26,7 @@ the first stage predicts from it too, and the second stage's left side is cleane
 
 Status: two uses. As a confirmation, by default: in closed loop by least squares a command-side
 cause (dead zone, clip, delay, drift, friction asymmetry) must also pass the gate on the
-instrumented design (tvsd.analysis.doctor._instrumented_check; docs/measurements/doctor-false-alarms.md,
+instrumented design (tvsd.analysis.closed_checks.instrumented_check; docs/measurements/doctor-false-alarms.md,
 "Closed-loop false alarms"); the clip on its own design (tvsd.analysis.rules' identified_for,
 expected_for: docs/measurements/closedsat.md).
 As the whole analysis, opt-in (`diagnose(..., iv=True)`; `python -m tvsd.analysis.matrix_closed

@@ -10,7 +10,7 @@ next repetition) so a partial batch is balanced.
 Variants: `ls` (least squares, the doctor's default), `iv` (two-stage least squares with the
 reference and, when recorded, identify's voltage excitation `u_exc` as instruments),
 `iv_ref` (the reference alone, as before u_exc was recorded), `ls0` (least squares as before this
-branch: every fold in the out-of-sample check, calibrate.heldout_gain; the line scan off the
+branch: every fold in the out-of-sample check, crossval.heldout_gain; the line scan off the
 command's lines), `ls1` (the folds' rule on, the lines still the command's), `ls2` (the
 instrumented confirmation with rules.identified_only and expected_maps: branch cldz), `lsm`
 (the clip confirmed on main's instrumented design, as before branch closedsat), `lsd` (the drift

@@ -86,23 +86,23 @@ def plan(
 def _no_gain() -> None:
     """Skip the held-out speed simulation: it runs after the cause is decided (doctor.py) and
     changes no answer; it is a third of an analysis's CPU (scripts/doctor_nulls.py --no-gain)."""
-    from tvsd.analysis import verdict
+    from tvsd.analysis import heldout_sim
 
-    verdict.heldout_speed = lambda *_a, **_k: (math.nan, math.nan, {}, {})
+    heldout_sim.heldout_speed = lambda *_a, **_k: (math.nan, math.nan, {}, {})
 
 
 @contextlib.contextmanager
 def heldout_gain_skipped() -> Iterator[None]:
     """`_no_gain` for the duration of a block, then the held-out simulation back (a test or a
     library call that skipped it left every later analysis in the process without it)."""
-    from tvsd.analysis import verdict
+    from tvsd.analysis import heldout_sim
 
-    saved = verdict.heldout_speed
+    saved = heldout_sim.heldout_speed
     _no_gain()
     try:
         yield
     finally:
-        verdict.heldout_speed = saved
+        heldout_sim.heldout_speed = saved
 
 
 def run(out: Path, cases: list[M.Case], cache: Path | None = None, seconds: float = 30.0) -> None:

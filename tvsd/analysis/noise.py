@@ -31,6 +31,7 @@ from scipy.stats import chi2
 
 from tvsd.analysis.quantisation import Floor
 
+COLOUR_P = 1e-3  # the noise colour's likelihood ratio (χ², 1 dof) must beat this p-value (the doctor's gate)
 SEGMENT_S = 4.0
 BAND_LOW_HZ = 0.5  # the spectral tests' lowest frequency
 MIN_SEEN_BINS = 12  # 3 Hz of band above the quantisation's floor: fewer, and no shape is told

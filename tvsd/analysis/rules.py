@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class Rules:
-    # calibrate.heldout_gain: leave out the folds the others do not determine (False: every fold,
+    # crossval.heldout_gain: leave out the folds the others do not determine (False: every fold,
     # the rule before; matrix_closed's `ls0`)
     skip_undetermined_folds: bool = True
     # calibrate's line scan: in closed loop the reference's lines, not the command's (`ls0`, `ls1`)
@@ -25,7 +25,7 @@ class Rules:
     # maps' blocks as E[f(u) | instruments] (branch cldz's `ls2`; docs/measurements/cldz.md)
     identified_only: bool = False
     expected_maps: bool = False
-    # Per cause (doctor._instrumented_check; docs/measurements/closedsat.md): the clip's
+    # Per cause (closed_checks.instrumented_check; docs/measurements/closedsat.md): the clip's
     # confirmation along identified directions, its block as E[f(u) | instruments]; rows from the
     # spin-up's end (instrument.steady_start's spin_only) for none by default
     identified_for: tuple[str, ...] = ("saturation",)

@@ -31,10 +31,12 @@ from typing import Any
 
 import numpy as np
 
-from tvsd.analysis import absorber
+from tvsd.analysis import absorber, crossval
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis.dataset import Dataset
+from tvsd.analysis.gls import gls
+from tvsd.analysis.linescan import RES_MIN_HZ, line_scan
 
 MAX_CAUSES = 3
 NOT_CAUSES = ("none", "model_mismatch")
@@ -90,7 +92,7 @@ def without(out: C.Outcome, causes: set[str], lines: np.ndarray | None = None) -
 
 def reference_scan(design: D.Design) -> np.ndarray | None:
     """Where the line scan may name a mode in a closed-loop recording: not at the reference's own
-    lines. The scan (calibrate._line_scan) leaves out the command's lines, where a rigid model's
+    lines. The scan (linescan.line_scan) leaves out the command's lines, where a rigid model's
     small misfit of the drive's response leaves a line no torque test tells from a mode; with
     identify's PRBS on the command, the reference multisine's lines sink under it there, and the
     SIL daemon's export named `resonance` at 6.80 Hz, the multisine's 34th harmonic of 0.2 Hz,
@@ -101,8 +103,8 @@ def reference_scan(design: D.Design) -> np.ndarray | None:
     prep = design.prep
     rows = prep.rows(np.asarray(ref, dtype=float))
     fs_rows = 1.0 / float(np.median(np.diff(prep.t_rows)))
-    scan = C._line_scan(np.zeros(len(rows)), [rows], fs_rows, fs_rows / 2)
-    return np.asarray(scan.f[scan.scan | (scan.f < C.RES_MIN_HZ)])
+    scan = line_scan(np.zeros(len(rows)), [rows], fs_rows, fs_rows / 2)
+    return np.asarray(scan.f[scan.scan | (scan.f < RES_MIN_HZ)])
 
 
 def _at_reference_line(t: C.Tested, allowed: np.ndarray | None) -> bool:
@@ -113,10 +115,10 @@ def _at_reference_line(t: C.Tested, allowed: np.ndarray | None) -> bool:
 
 
 def cv_gain(design: D.Design, out: C.Outcome, verdict: Any) -> float:
-    """The named extension's out-of-sample gain (calibrate.heldout_gain) over the design's model."""
+    """The named extension's out-of-sample gain (crossval.heldout_gain) over the design's model."""
     if verdict.X.shape[1] == design.X.shape[1] and np.array_equal(verdict.X, design.X):
         return 0.0
-    return float(C.heldout_gain(design, out, verdict.X))
+    return float(crossval.heldout_gain(design, out, verdict.X))
 
 
 def further(
@@ -144,7 +146,7 @@ def further(
         out = without(C.test_all(cur, seed=seed), taken, lines)
         if not out.significant:
             break
-        fit = C.gls(cur.y, cur.X, out.ar, out.keep)
+        fit = gls(cur.y, cur.X, out.ar, out.keep)
         # The drive's parameters were judged with the top cause in the model (the verdict's
         # physical checks); a later cause is judged by its gate, its own physical sense and its
         # out-of-sample gains, not refused for moving a friction level of a closed-loop fit
@@ -179,7 +181,7 @@ def amplitude_se(
     X_rigid, b = absorber.rigid(design, verdict.X)
     if X_rigid.shape[1] < b + 2:
         return {}
-    fit = C.gls(design.y, X_rigid, out.ar, out.keep)
+    fit = gls(design.y, X_rigid, out.ar, out.keep)
     cs, cc = float(fit.theta[b]), float(fit.theta[b + 1])
     h = math.hypot(cs, cc)
     if h == 0:

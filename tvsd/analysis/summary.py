@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from tvsd.analysis.doctor import ALPHA, Diagnosis, effect_array
+from tvsd.analysis.doctor import ALPHA, Diagnosis
+from tvsd.analysis.heldout_sim import effect_array
 from tvsd.analysis.lyapunov import Lyapunov, estimate
 from tvsd.model import effects as E
 
@@ -39,8 +40,8 @@ SENTENCES = {
 
 def refused(dg: Diagnosis) -> list[Any]:
     """Candidates that looked like a cause and were not named: above the z gate, or coloured
-    noise below its own spectral test's p-value (doctor.COLOUR_P)."""
-    from tvsd.analysis.doctor import COLOUR_P
+    noise below its own spectral test's p-value (noise.COLOUR_P)."""
+    from tvsd.analysis.noise import COLOUR_P
 
     out = []
     for s in dg.ranked:

@@ -48,7 +48,8 @@ def _run(args: argparse.Namespace) -> int:
     from tvsd.analysis import memory
     from tvsd.analysis import report as R
     from tvsd.analysis.dataset import load
-    from tvsd.analysis.doctor import COLOUR_P, diagnose
+    from tvsd.analysis.doctor import diagnose
+    from tvsd.analysis.noise import COLOUR_P
     from tvsd.analysis.prep import EMPS_BAND, Band, check_filled
     from tvsd.analysis.summary import as_json
 
