@@ -198,7 +198,8 @@ class SimMpu6050:
         self._ticks = due
         frames = self._frames(t)
         self.latest = frames[-1].astype(np.int16)
-        if self._fifo_takes():
+        fifo_on = self.regs[reg.USER_CTRL] & reg.USER_FIFO_EN
+        if fifo_on and self.regs[reg.FIFO_EN] & reg.FIFO_EN_GYRO_ACCEL == reg.FIFO_EN_GYRO_ACCEL:
             self.fifo += frames.astype(">i2").tobytes()
             self.produced += len(frames)
             if len(self.fifo) > reg.FIFO_SIZE:  # the oldest bytes go: alignment is lost
@@ -206,38 +207,7 @@ class SimMpu6050:
                 self.regs[reg.INT_STATUS] |= reg.INT_FIFO_OFLOW
         self.cpu_s += time.thread_time() - start
 
-    def _answered_lazily(self, register: int, length: int, now: float | None) -> bool:
-        """Whether this read can be answered without making the frames due by `now`: a
-        FIFO_COUNT or INT_STATUS read needs only how many there are (the FIFO's length as if they
-        had been appended), unless they would overflow it (then they are made: which bytes the
-        overflow drops, and the flag set once, are the chip's). The frames are made at the next
-        access that needs their values (a FIFO pop, the live registers, a write), for the same
-        sample times: a poll's count read and the INT_STATUS read after its burst cost no
-        sampling (each generation has a fixed cost, the twins' share of the SIL bus's CPU)."""
-        count = register == reg.FIFO_COUNT_H and length <= 2
-        asleep = self.regs[reg.PWR_MGMT_1] & reg.PWR_SLEEP
-        if asleep or not (count or (register == reg.INT_STATUS and length == 1)):
-            return False
-        now = self.clock.now() if now is None else now
-        due = int(np.floor((now - self._t0) * self.rate_hz)) - self._ticks
-        size = len(self.fifo) + reg.FRAME_BYTES * max(due, 0) * self._fifo_takes()
-        if size > reg.FIFO_SIZE:
-            return False
-        if count:
-            self.regs[reg.FIFO_COUNT_H], self.regs[reg.FIFO_COUNT_H + 1] = size >> 8, size & 0xFF
-        return True
-
-    def _fifo_takes(self) -> bool:
-        """Whether new frames go to the FIFO (FIFO on, accel and gyro enabled in it)."""
-        fifo_on = self.regs[reg.USER_CTRL] & reg.USER_FIFO_EN
-        return bool(fifo_on and self.regs[reg.FIFO_EN] & reg.FIFO_EN_GYRO_ACCEL == reg.FIFO_EN_GYRO_ACCEL)
-
     def read(self, register: int, length: int, partial: bool = False, now: float | None = None) -> list[int]:
-        if self._answered_lazily(register, length, now):
-            out = list(self.regs[register : register + length])
-            if register == reg.INT_STATUS:
-                self.regs[reg.INT_STATUS] = 0  # cleared by reading
-            return out
         self.update(now)
         if register == reg.FIFO_R_W:
             n = int(self._rng.integers(1, length)) if partial else length
