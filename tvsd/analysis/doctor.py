@@ -45,7 +45,6 @@ from tvsd.analysis.simulate import ReducedModel
 from tvsd.analysis.verdict import Scored, name_cause
 
 ALPHA = C.ALPHA
-INPUT_CAUSES = ("deadzone", "saturation", "delay")
 
 Progress = Callable[[str], None]
 
