@@ -83,9 +83,9 @@ def confirmation_baseline(
         return None
     prep = prepare(data, Band())
     rotary = data.units.axis == "rotary"
-    measured = absorber.absorb(D.build(prep, data.offset_term, rotary))
+    measured = absorber.absorb(D.build(prep, data.offset_term, rotary, rules=rules))
     spin = cause in rules.spin_only_for
-    iv, _ = instrument.instrumented(prep, data.offset_term, rotary, spin_only=spin)
+    iv, _ = instrument.instrumented(prep, data.offset_term, rotary, spin_only=spin, rules=rules)
     return Baseline(measured.X[iv.rows_mask], iv.rows_mask, prep.band_rows)
 
 
