@@ -73,7 +73,7 @@ for src, seed, path in todo:
     r = rows[seed]
     case = M.Case(**{k: r[k] for k in FIELDS})
     if case.profile == "identify":
-        from tvsd.analysis.matrix_closed import case_config
+        from tvsd.analysis.closed_plan import case_config
 
         cfg = case_config(case)
     else:

@@ -1,4 +1,4 @@
-"""The closed-loop matrix's variants as explicit rules (tvsd.analysis.rules, matrix_closed.VARIANTS)
+"""The closed-loop matrix's variants as explicit rules (tvsd.analysis.rules, closed_judge.VARIANTS)
 and a clip's exposed units on its confirmation's rows and columns (tvsd.analysis.exposure)."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import pytest
 
 from tvsd.analysis import calibrate, crossval, drift, instrument, linescan
 from tvsd.analysis import design as D
+from tvsd.analysis.closed_judge import VARIANTS
 from tvsd.analysis.dataset import Dataset, load
-from tvsd.analysis.matrix_closed import VARIANTS
 from tvsd.analysis.prep import Band, prepare
 from tvsd.analysis.rules import DEFAULT, Rules
 from tvsd.config import load_config
