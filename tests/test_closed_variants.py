@@ -155,3 +155,36 @@ def test_a_clips_exposed_units_are_measured_on_the_confirmations_rows(identify8:
     steady = np.where(np.arange(len(data.u)) > start, np.sign(np.sin(2 * np.pi * 3.0 * data.t)), 0.0)
     assert base.beyond(steady) > 0.5
 
+
+def test_a_dead_zones_and_a_drifts_size_are_measured_on_the_confirmations_rows(identify8: Dataset) -> None:
+    """In closed loop a dead zone and a drift are named only if their instrumented confirmation
+    passes (closed_checks.instrumented_check), so their size is measured, as the clip's, on that
+    confirmation's rows and columns (exposure.confirmation_baseline). A command that enters a
+    0.2 V zone only in the spin-up (a ±0.1 V square wave, ending half a second before the steady
+    rows begin: past the band filter's reach) and stays far outside it after shows nothing there:
+    0 exposed units on the confirmation's rows, where the measure over every moving sample took
+    the spin-up's square wave (> 0). A drift's visible units are its torque beyond the same
+    baseline."""
+    from tvsd.analysis.exposure import confirmation_baseline, exposure
+
+    data = identify8
+    plant = load_config().plant
+    start = instrument.steady_start(data)
+    rate = data.sample_rate_hz
+    omega = data.speed if data.speed is not None else np.gradient(data.position, data.t)
+    early = np.arange(len(data.u)) < start - round(0.5 * rate)
+    u = np.where(early, 0.1 * np.sign(np.sin(2 * np.pi * 3.0 * data.t)), 5.0)
+    sigma, dt = 0.1, 1.0 / rate
+    base = confirmation_baseline(data, "deadzone")
+    assert base is not None
+    zone = "deadzone:u0=0.2"
+    assert exposure(zone, u, omega, plant, sigma, dt)["exposed_units"] > 0.1  # the old measure
+    assert exposure(zone, u, omega, plant, sigma, dt, base)["exposed_units"] < 1e-6
+    drift = "drift:parameter=friction,relative_change=0.15"
+    base = confirmation_baseline(data, "drift")
+    assert base is not None
+    torque = 0.15 * np.linspace(0.0, 1.0, len(data.u)) * plant.tau_c * np.sign(omega)
+    want = base.beyond(torque) / (plant.J * sigma)
+    got = exposure(drift, data.u, omega, plant, sigma, dt, base)["visible"]
+    assert got == pytest.approx(want, rel=1e-4)  # exposure rounds to 5 digits
+    assert got != exposure(drift, data.u, omega, plant, sigma, dt)["visible"]

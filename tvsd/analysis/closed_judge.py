@@ -79,9 +79,15 @@ def analyse(path: Path, cfg: Config, variant: str) -> tuple[str, float, dict[str
     return found, time.perf_counter() - t0, why
 
 
+# The causes whose closed-loop answer is decided by their instrumented confirmation
+# (closed_checks.instrumented_check): their size is measured on its rows and columns.
+CONFIRMED_SIZES = ("saturation", "deadzone", "drift")
+
+
 def seen(path: Path, case: M.Case, cfg: Config) -> dict[str, float]:
     """tvsd.analysis.exposure's measures of the case's effect on the recording the doctor got; a
-    clip's exposed units on the rows and columns of its confirmation (the default rules').
+    clip's and a dead zone's exposed units and a drift's visible units on the rows and columns of
+    its confirmation (the default rules'; branch closedfix for the clip, closedrules the others).
     """
     from tvsd.analysis.dataset import load
     from tvsd.analysis.exposure import confirmation_baseline, exposure
@@ -89,5 +95,5 @@ def seen(path: Path, case: M.Case, cfg: Config) -> dict[str, float]:
     data = load(path, cfg)
     omega = data.speed if data.speed is not None else np.gradient(data.position, data.t)
     dt = 1.0 / data.sample_rate_hz
-    baseline = confirmation_baseline(data) if case.cause == "saturation" else None
+    baseline = confirmation_baseline(data, case.cause) if case.cause in CONFIRMED_SIZES else None
     return exposure(case.effect, data.u, omega, cfg.plant, case.sigma_v, dt, baseline)
