@@ -101,7 +101,7 @@ def test_a_dead_zone_the_command_never_enters_is_exposed_as_zero_noise_units() -
 
 
 def test_an_exposed_dead_zone_is_sized_by_the_torque_the_command_shows() -> None:
-    """matrix_closed.deadzone_size: on a scan whose command (3 V ± 0.5 V, one sample in 7 at
+    """closed_plan.deadzone_size: on a scan whose command (3 V ± 0.5 V, one sample in 7 at
     −3 V against the motion) shows a zone, the zone found exposes the target torque (bisection
     to 2^-40 of the command's range: equal to 1e-6 V); a target beyond what any zone on the
     command can show returns the widest zone (half the command's 99 % point) and what it shows,
