@@ -20,7 +20,7 @@ from typing import Any
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import doctor
 from tvsd.analysis import matrix as M
-from tvsd.analysis import matrix_closed as MC
+from tvsd.analysis import closed_plan as CP
 from tvsd.analysis.dataset import load
 from tvsd.analysis.matrix_open import _no_gain
 
@@ -43,7 +43,7 @@ def main() -> None:
         if r["cause"] not in causes or (only_miss and r["ls"] == r["cause"]):
             continue
         case = M.Case(**{f.name: r[f.name] for f in dataclasses.fields(M.Case)})
-        cfg = MC.case_config(case)
+        cfg = CP.case_config(case)
         calls.clear()
         dg = doctor.diagnose(load(cache / f"case{case.seed}.csv", cfg), cfg.plant.v0)
         s = next((s for s in dg.ranked if s.cause == r["cause"]), None)

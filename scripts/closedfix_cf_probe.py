@@ -21,7 +21,7 @@ from tvsd.analysis import absorber, instrument
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis import matrix as M
-from tvsd.analysis import matrix_closed as MC
+from tvsd.analysis import closed_plan as CP
 from tvsd.analysis.dataset import load
 from tvsd.analysis.prep import Band, Prepared, prepare
 
@@ -55,7 +55,7 @@ def main() -> None:
         if seeds is not None and r["seed"] not in seeds:
             continue
         case = M.Case(**{k.name: r[k.name] for k in dataclasses.fields(M.Case)})
-        data = load(cache / f"case{case.seed}.csv", MC.case_config(case))
+        data = load(cache / f"case{case.seed}.csv", CP.case_config(case))
         prep = prepare(data, Band())
         measured = absorber.absorb(D.build(prep, data.offset_term, True))
         cf = control_function(prep)

@@ -16,7 +16,8 @@ import sys
 from pathlib import Path
 
 from tvsd.analysis import matrix as M
-from tvsd.analysis import matrix_closed as MC
+from tvsd.analysis import closed_judge as CJ
+from tvsd.analysis import closed_plan as CP
 
 
 def main() -> None:
@@ -28,7 +29,7 @@ def main() -> None:
             r = json.loads(line)
             case = M.Case(**{k.name: r[k.name] for k in dataclasses.fields(M.Case)})
             r["seen_before"] = r["seen"]
-            r["seen"] = MC.seen(cache / f"case{case.seed}.csv", case, MC.case_config(case))
+            r["seen"] = CJ.seen(cache / f"case{case.seed}.csv", case, CP.case_config(case))
             print(
                 case.seed,
                 r["seen_before"].get("exposed_units"),

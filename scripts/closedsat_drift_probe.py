@@ -14,7 +14,8 @@ import sys
 from pathlib import Path
 
 from tvsd.analysis import matrix as M
-from tvsd.analysis import matrix_closed as MC
+from tvsd.analysis import closed_judge as CJ
+from tvsd.analysis import closed_plan as CP
 from tvsd.analysis.dataset import load
 from tvsd.analysis.doctor import diagnose
 from tvsd.analysis.matrix_open import heldout_gain_skipped
@@ -28,9 +29,9 @@ def main() -> None:
     cache = Path(sys.argv[2]) if len(sys.argv) > 2 else Path("/tmp/closedsat/probe")
     variants = sys.argv[3].split(",") if len(sys.argv) > 3 else ["ls", "lsd"]
     cache.mkdir(parents=True, exist_ok=True)
-    c71 = next(c for c in MC.plan_cells(8, (3.0, 10.0, 30.0), 71, 4) if c.seed == 710084)
+    c71 = next(c for c in CP.plan_cells(8, (3.0, 10.0, 30.0), 71, 4) if c.seed == 710084)
     n52 = M.cases(n_null=145, reps=0, seed=52, profiles=M.CLOSED_PROFILES)[144]
-    for case, cfg in ((c71, MC.case_config(c71)), (n52, M.case_config(load_config(), n52))):
+    for case, cfg in ((c71, CP.case_config(c71)), (n52, M.case_config(load_config(), n52))):
         path = cache / f"case{case.seed}.csv"
         if not path.exists():
             effects = (parse_effect(case.effect),) if case.effect else ()
@@ -38,7 +39,7 @@ def main() -> None:
         data = load(path, cfg)
         for variant in variants:
             with heldout_gain_skipped():
-                dg = diagnose(data, cfg.plant.v0, rules=MC.VARIANTS[variant].rules)
+                dg = diagnose(data, cfg.plant.v0, rules=CJ.VARIANTS[variant].rules)
             z = {s.cause: round(float(s.z), 3) for s in dg.ranked}
             why = {s.cause: s.why_not[0] for s in dg.ranked if s.why_not}
             row = {

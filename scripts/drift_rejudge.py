@@ -1,5 +1,5 @@
 """Re-judge stored matrix cases on the drift's trend test (after) and on the per-window refits
-before it (drift.DRIFT_TREND_TEST False), from their cached recordings (branch drift).
+before it (rules.drift_trend_test False), from their cached recordings (branch drift).
 
     nice -n 5 .venv/bin/python scripts/drift_rejudge.py W/NW OUT.wW.jsonl LIST.json
 
@@ -10,6 +10,7 @@ the drift's z did not pass the gate, where the rule does not act). Diagnosed onc
 old rule only where the two rules disagree. A restart skips seeds already in OUT's sibling files.
 """
 
+import dataclasses
 import glob
 import json
 import sys
@@ -20,6 +21,7 @@ from tvsd.analysis import matrix as M
 from tvsd.analysis.dataset import load
 from tvsd.analysis.doctor import diagnose
 from tvsd.analysis.matrix_open import _no_gain
+from tvsd.analysis.rules import DEFAULT
 from tvsd.config import load_config
 
 _no_gain()
@@ -47,15 +49,15 @@ def both(design, o, parameter, sign):
     new = DF.agrees(design, o, parameter, sign)
     old = DF.window_refits_agree(design, o, parameter, sign)
     trace.update(new=new.agrees, old=bool(old), trend=new.as_dict(), parameter=parameter)
-    return new.agrees if DF.DRIFT_TREND_TEST else bool(old)
+    return new.agrees if design.rules.drift_trend_test else bool(old)
 
 
 DF.confirmed = both
 
 
-def run(data, cfg):
+def run(data, cfg, rules=DEFAULT):
     trace.clear()
-    dg = diagnose(data, cfg.plant.v0)
+    dg = diagnose(data, cfg.plant.v0, rules=rules)
     why = {
         "z": {s.cause: round(float(s.z), 3) for s in dg.ranked},
         "threshold": round(float(dg.outcome.threshold), 3),
@@ -71,7 +73,7 @@ for src, seed, path in todo:
     r = rows[seed]
     case = M.Case(**{k: r[k] for k in FIELDS})
     if case.profile == "identify":
-        from tvsd.analysis.matrix_closed import case_config
+        from tvsd.analysis.closed_plan import case_config
 
         cfg = case_config(case)
     else:
@@ -80,12 +82,11 @@ for src, seed, path in todo:
     row = {k: r[k] for k in FIELDS}
     row["seen"] = r.get("seen")
     row["stored"] = r["ls"]
-    DF.DRIFT_TREND_TEST = True
     row["ls"], row["ls_why"], tr = run(data, cfg)
     row["drift_trace"] = tr
     if tr and tr["new"] != tr["old"]:
-        DF.DRIFT_TREND_TEST = False
-        row["before"], row["before_why"], _ = run(data, cfg)
+        before = dataclasses.replace(DEFAULT, drift_trend_test=False)
+        row["before"], row["before_why"], _ = run(data, cfg, before)
     else:
         row["before"], row["before_why"] = row["ls"], row["ls_why"]
     with out.open("a") as f:

@@ -26,7 +26,7 @@ for pat in [
                 continue
             case = M.Case(**{k: r[k] for k in FIELDS})
             if case.profile == "identify":
-                from tvsd.analysis.matrix_closed import case_config
+                from tvsd.analysis.closed_plan import case_config
 
                 cfg = case_config(case)
                 p = f"/tmp/closedlim/cache71/case{case.seed}.csv"

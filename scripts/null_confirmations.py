@@ -7,9 +7,13 @@ before branch heldout and after; the verdict follows the rule after.
 ROWS: scripts/doctor_nulls.py output rows (plant, profile, σv of each null); ALPHA the decision's
 gate (0.01 is the doctor's; larger lets more nulls reach the confirmations). One JSON line per
 null: what was named, and `calls` [extra columns, gain before, gain after], `drift`
-[parameter, before, after].
+[parameter, before, after] (the per-window refits are asked only under rules.drift_trend_test off).
+
+The rule before is the design's rules with the switch off (tvsd.analysis.rules), on a copy of the
+design: no module flag is set, so nothing is left switched if a call raises.
 """
 
+import dataclasses
 import functools
 import glob
 import json
@@ -38,10 +42,13 @@ orig_hg = CV.heldout_gain
 calls = []
 
 
+def switched(design, **off):
+    """The design with its rules' switches `off` (a shallow copy: the arrays are shared)."""
+    return dataclasses.replace(design, rules=dataclasses.replace(design.rules, **off))
+
+
 def hg(design, o, X_ext, folds=CV.CV_FOLDS):
-    CV.SKIP_UNPINNED_FOLDS = False
-    old = orig_hg(design, o, X_ext, folds)
-    CV.SKIP_UNPINNED_FOLDS = True
+    old = orig_hg(switched(design, skip_unpinned_folds=False), o, X_ext, folds)
     new = orig_hg(design, o, X_ext, folds)
     calls.append([X_ext.shape[1] - design.X.shape[1], round(old, 2), round(new, 2)])
     return new
@@ -52,12 +59,10 @@ orig_da = DF.window_refits_agree
 dcalls = []
 
 
-def da(*a, **k):
-    DF.DRIFT_PINNED_WINDOWS = False
-    old = orig_da(*a, **k)
-    DF.DRIFT_PINNED_WINDOWS = True
-    new = orig_da(*a, **k)
-    dcalls.append([a[2], old, new])
+def da(design, o, parameter, sign):
+    old = orig_da(switched(design, drift_pinned_windows=False), o, parameter, sign)
+    new = orig_da(design, o, parameter, sign)
+    dcalls.append([parameter, old, new])
     return new
 
 

@@ -70,8 +70,9 @@ def test_a_closed_loop_clip_at_the_drives_rail_is_confirmed_on_the_instruments(t
     directions (rules.identified_for, expected_for), and names it (z 5.5, gate 4.2).
     Deterministic (fixed seeds)."""
     from tvsd.analysis import matrix_closed as MC
+    from tvsd.analysis.closed_plan import plan_cells
 
-    case = next(c for c in MC.plan_cells(8, (3.0, 10.0, 30.0), 71, 4) if c.seed == 710138)
+    case = next(c for c in plan_cells(8, (3.0, 10.0, 30.0), 71, 4) if c.seed == 710138)
     assert (case.cause, case.size) == ("saturation", 30.0)
     out = tmp_path / "one.jsonl"
     MC.run(out, [case], ("lsm", "ls"), gain=False)
@@ -100,13 +101,13 @@ def test_a_dead_zone_the_command_never_enters_is_exposed_as_zero_noise_units() -
 
 
 def test_an_exposed_dead_zone_is_sized_by_the_torque_the_command_shows() -> None:
-    """matrix_closed.deadzone_size: on a scan whose command (3 V ± 0.5 V, one sample in 7 at
+    """closed_plan.deadzone_size: on a scan whose command (3 V ± 0.5 V, one sample in 7 at
     −3 V against the motion) shows a zone, the zone found exposes the target torque (bisection
     to 2^-40 of the command's range: equal to 1e-6 V); a target beyond what any zone on the
     command can show returns the widest zone (half the command's 99 % point) and what it shows,
     less than asked."""
+    from tvsd.analysis.closed_plan import deadzone_size
     from tvsd.analysis.exposure import MOVING_RAD_S, beyond_coulomb
-    from tvsd.analysis.matrix_closed import deadzone_size
 
     g = np.random.default_rng(0)
     u = 3.0 + 0.5 * np.sign(g.standard_normal(4000))

@@ -124,7 +124,7 @@ def test_the_closed_loop_batch_plan_is_balanced_round_by_round_and_pairs_with_it
     """Every round holds each cause at each size once and its share of the nulls, so a batch cut
     short is balanced; a --rounds/--causes subset draws the same cases (same seeds, plants,
     effects) as the full plan, so runs with another excitation compare case by case."""
-    from tvsd.analysis import matrix_closed as MC
+    from tvsd.analysis import closed_plan as MC
 
     sizes = (3.0, 10.0)
     full = MC.plan(n_null=6, reps=3, sizes=sizes, seed=0)
@@ -221,8 +221,9 @@ def test_a_closed_loop_drift_is_confirmed_by_the_windows_resisting_torque(tmp_pa
     import json
 
     from tvsd.analysis import matrix_closed as MC
+    from tvsd.analysis.closed_plan import plan
 
-    case = next(c for c in MC.plan(n_null=0, reps=3, sizes=(30.0, 100.0), seed=0) if c.seed == 14)
+    case = next(c for c in plan(n_null=0, reps=3, sizes=(30.0, 100.0), seed=0) if c.seed == 14)
     assert case.cause == "drift" and case.effect == "drift:parameter=kv,relative_change=0.15"
     out = tmp_path / "one.jsonl"
     MC.run(out, [case], ("ls",))
@@ -256,12 +257,13 @@ def test_the_confusion_table_counts_what_was_named_instead_and_states_the_limit(
 
 def _plan_case_under(tmp_path: Path, seed: int, before: str) -> dict:
     """Closed-loop plan seed 0's case `seed` (a 10x resonance) judged by the rules now (`ls`)
-    and by the variant `before` (tvsd.analysis.matrix_closed's rule switches)."""
+    and by the variant `before` (tvsd.analysis.closed_judge.VARIANTS)."""
     import json
 
     from tvsd.analysis import matrix_closed as MC
+    from tvsd.analysis.closed_plan import plan
 
-    case = next(c for c in MC.plan(n_null=6, reps=3, sizes=(3.0, 10.0), seed=0) if c.seed == seed)
+    case = next(c for c in plan(n_null=6, reps=3, sizes=(3.0, 10.0), seed=0) if c.seed == seed)
     assert (case.cause, case.size) == ("resonance", 10.0)
     out = tmp_path / "one.jsonl"
     MC.run(out, [case], ("ls", before))

@@ -1,17 +1,18 @@
-"""The closed-loop matrix's variants as explicit rules (tvsd.analysis.rules, matrix_closed.VARIANTS)
+"""The closed-loop matrix's variants as explicit rules (tvsd.analysis.rules, closed_judge.VARIANTS)
 and a clip's exposed units on its confirmation's rows and columns (tvsd.analysis.exposure)."""
 
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 import pytest
 
-from tvsd.analysis import calibrate, crossval, instrument, linescan
+from tvsd.analysis import calibrate, crossval, drift, instrument, linescan
 from tvsd.analysis import design as D
+from tvsd.analysis.closed_judge import VARIANTS
 from tvsd.analysis.dataset import Dataset, load
-from tvsd.analysis.matrix_closed import VARIANTS
 from tvsd.analysis.prep import Band, prepare
 from tvsd.analysis.rules import DEFAULT, Rules
 from tvsd.config import load_config
@@ -60,8 +61,55 @@ def test_the_rules_are_frozen_and_no_module_flag_is_left_to_leak() -> None:
         (instrument, "IDENTIFIED_FOR"),
         (instrument, "EXPECTED_FOR"),
         (instrument, "SPIN_ONLY_FOR"),
+        # scripts/null_confirmations.py flipped these without putting them back on an error,
+        # and tests set them around a call (branch closedrules: rules.skip_unpinned_folds,
+        # drift_trend_test, drift_pinned_windows)
+        (crossval, "SKIP_UNPINNED_FOLDS"),
+        (drift, "DRIFT_PINNED_WINDOWS"),
+        (drift, "DRIFT_TREND_TEST"),
     ]:
         assert not hasattr(module, flag), flag
+
+
+def test_the_out_of_sample_check_reads_the_unpinned_fold_rule_from_the_design() -> None:
+    """crossval.heldout_gain leaves out a fold the other four do not pin down, by the design's
+    rules (skip_unpinned_folds), not by a module flag. A null record (y = baseline + white noise,
+    seeded) and an extension column that is 1e-4 of its size on four folds and 1 on the fifth:
+    fitted on the four, its coefficient's error is ~1e4 × the noise's scale, so the fifth fold's
+    leverage is ~n_fold·1e8 noise variances, far above the record's whole evidence for the column
+    (a null's: ~1). Judged, that fold loses ~1e8 (the rule before); left out, the extension loses
+    about what a null column loses on the others (≈ 1 noise variance, not more than a few)."""
+    from types import SimpleNamespace
+
+    g = np.random.default_rng(5)
+    n = 1000
+    t = np.linspace(0.0, 1.0, n)
+    x = g.standard_normal(n)
+    X = np.column_stack([np.ones(n), x])
+    y = 0.3 + 2.0 * x + g.standard_normal(n)
+    ext = np.where(t >= 0.8, 1.0, 1e-4) * g.standard_normal(n)
+    X_ext = np.column_stack([X, ext])
+    keep = np.ones(n, dtype=bool)
+    out = calibrate.Outcome([], 0.0, n, np.array([1.0]), False, y, keep)
+
+    def gain(rules: Rules) -> float:
+        prep: Any = SimpleNamespace(t_rows=t)
+        design = D.Design(prep, y, X, ("b", "a"), keep, 1.0, 1.0, rules=rules)
+        return crossval.heldout_gain(design, out, X_ext)
+
+    assert -5.0 < gain(DEFAULT) < 1.0  # a null column's loss on the pinned folds (≈ −1)
+    assert gain(dataclasses.replace(DEFAULT, skip_unpinned_folds=False)) < -1e4  # the rule before
+
+
+def test_the_design_carries_the_rules_it_was_built_with(identify8: Dataset) -> None:
+    """design.build and instrument.instrumented take the rules, so every design the doctor makes
+    (the measured one, the instrumented ones of the confirmations) holds them from the start."""
+    prep = prepare(identify8, Band())
+    rules = Rules(lines_of_reference=False, drift_trend_test=False)
+    assert D.build(prep, identify8.offset_term, True).rules == DEFAULT
+    assert D.build(prep, identify8.offset_term, True, rules=rules).rules is rules
+    iv, _ = instrument.instrumented(prep, identify8.offset_term, True, rules=rules)
+    assert iv.rules is rules
 
 
 @pytest.fixture(scope="module")
@@ -106,3 +154,37 @@ def test_a_clips_exposed_units_are_measured_on_the_confirmations_rows(identify8:
     assert base.beyond(spin) < 1e-6 * float(np.sqrt(np.mean(spin**2)))
     steady = np.where(np.arange(len(data.u)) > start, np.sign(np.sin(2 * np.pi * 3.0 * data.t)), 0.0)
     assert base.beyond(steady) > 0.5
+
+
+def test_a_dead_zones_and_a_drifts_size_are_measured_on_the_confirmations_rows(identify8: Dataset) -> None:
+    """In closed loop a dead zone and a drift are named only if their instrumented confirmation
+    passes (closed_checks.instrumented_check), so their size is measured, as the clip's, on that
+    confirmation's rows and columns (exposure.confirmation_baseline). A command that enters a
+    0.2 V zone only in the spin-up (a ±0.1 V square wave, ending half a second before the steady
+    rows begin: past the band filter's reach) and stays far outside it after shows nothing there:
+    0 exposed units on the confirmation's rows, where the measure over every moving sample took
+    the spin-up's square wave (> 0). A drift's visible units are its torque beyond the same
+    baseline."""
+    from tvsd.analysis.exposure import confirmation_baseline, exposure
+
+    data = identify8
+    plant = load_config().plant
+    start = instrument.steady_start(data)
+    rate = data.sample_rate_hz
+    omega = data.speed if data.speed is not None else np.gradient(data.position, data.t)
+    early = np.arange(len(data.u)) < start - round(0.5 * rate)
+    u = np.where(early, 0.1 * np.sign(np.sin(2 * np.pi * 3.0 * data.t)), 5.0)
+    sigma, dt = 0.1, 1.0 / rate
+    base = confirmation_baseline(data, "deadzone")
+    assert base is not None
+    zone = "deadzone:u0=0.2"
+    assert exposure(zone, u, omega, plant, sigma, dt)["exposed_units"] > 0.1  # the old measure
+    assert exposure(zone, u, omega, plant, sigma, dt, base)["exposed_units"] < 1e-6
+    drift = "drift:parameter=friction,relative_change=0.15"
+    base = confirmation_baseline(data, "drift")
+    assert base is not None
+    torque = 0.15 * np.linspace(0.0, 1.0, len(data.u)) * plant.tau_c * np.sign(omega)
+    want = base.beyond(torque) / (plant.J * sigma)
+    got = exposure(drift, data.u, omega, plant, sigma, dt, base)["visible"]
+    assert got == pytest.approx(want, rel=1e-4)  # exposure rounds to 5 digits
+    assert got != exposure(drift, data.u, omega, plant, sigma, dt)["visible"]

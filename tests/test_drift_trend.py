@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from tvsd.analysis import drift
 from tvsd.analysis import matrix as M
 from tvsd.analysis.matrix_open import plan
+from tvsd.analysis.rules import DEFAULT
 
 K = 10
 X = (np.arange(K) + 0.5) / K  # window centres, share of the record
@@ -94,11 +97,8 @@ def test_matrix_drifts_the_per_window_refits_refused_are_named(tmp_path, seed, p
     record(cfg, path, case.profile, 30.0, (parse_effect(case.effect),), case.seed)
     data = load(path, cfg)
     assert diagnose(data, cfg.plant.v0).cause == "drift"
-    drift.DRIFT_TREND_TEST = False
-    try:
-        assert diagnose(data, cfg.plant.v0).cause == "none"  # the rule before
-    finally:
-        drift.DRIFT_TREND_TEST = True
+    before = dataclasses.replace(DEFAULT, drift_trend_test=False)
+    assert diagnose(data, cfg.plant.v0, rules=before).cause == "none"  # the rule before
 
 
 def test_an_r_drift_at_a_steady_speed_is_visible_only_as_the_friction_it_balances():

@@ -8,7 +8,7 @@ from collections import Counter
 
 from tvsd.analysis import matrix as M
 from tvsd.analysis import matrix_limits as L
-from tvsd.analysis.matrix_closed import plan_cells
+from tvsd.analysis.closed_plan import plan_cells
 from tvsd.analysis.matrix_open import causes
 
 

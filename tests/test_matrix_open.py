@@ -131,11 +131,7 @@ def test_the_drift_trend_leaves_out_a_window_that_cannot_resolve_the_change():
     flat = np.array([1.0, 1.01, 0.99, 1.0, 1.005])
     assert not drift.trend_agrees(x, flat, np.full(5, 0.001**2), sign=-0.05)
     # counted, the window that cannot resolve the change refused the drift (the rule before)
-    drift.DRIFT_PINNED_WINDOWS = False
-    try:
-        assert not drift.trend_agrees(x, y, var, sign=-0.117)
-    finally:
-        drift.DRIFT_PINNED_WINDOWS = True
+    assert not drift.trend_agrees(x, y, var, sign=-0.117, pinned=False)
 
 
 def test_an_angle_periodic_cause_over_less_than_its_period_is_scored_apart():

@@ -47,10 +47,11 @@ def instrumented_check(
         )
         if key not in memo:
             ident, expect, spin = key
-            iv, _ = instrument.instrumented(prep, data.offset_term, rotary, expected=expect, spin_only=spin)
+            iv, _ = instrument.instrumented(
+                prep, data.offset_term, rotary, expected=expect, spin_only=spin, rules=rules
+            )
             iv = absorber.absorb(iv)
             iv.back_emf = measured.back_emf
-            iv.rules = rules
             iv.y = instrument.structural_left_side(iv, measured, identified_only=ident)
             memo[key] = C.test_all(iv, seed=seed)
         out = memo[key]

@@ -17,7 +17,6 @@ from tvsd.analysis.design import Design
 from tvsd.analysis.gls import gls, whiten, whitened_rss
 
 CV_FOLDS = 5  # contiguous held-out folds of the out-of-sample confirmation
-SKIP_UNPINNED_FOLDS = True  # False: every fold of full rank judged, as before the pinning rule
 
 
 def heldout_gain(design: Design, out: Outcome, X_ext: np.ndarray, folds: int = CV_FOLDS) -> float:
@@ -49,7 +48,7 @@ def heldout_gain(design: Design, out: Outcome, X_ext: np.ndarray, folds: int = C
     # left out, and a delay at z 91 and an imbalance at z 24 were refused with no gain measured.
     skip = design.rules.skip_undetermined_folds  # False: the rule before (matrix_closed's `ls0`)
     full_rank = np.linalg.matrix_rank(X_ext[out.keep]) if skip else 0
-    pinned = skip and SKIP_UNPINNED_FOLDS
+    pinned = skip and design.rules.skip_unpinned_folds  # False: every fold of full rank judged
     evidence = _evidence(design, out, X_ext) if pinned else math.inf
     for lo, hi in itertools.pairwise(edges):
         fold = (t >= lo) & (t < hi)

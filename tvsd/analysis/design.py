@@ -75,7 +75,11 @@ def _shift(u: np.ndarray, samples: int) -> np.ndarray:
     return out
 
 
-def build(prep: Prepared, offset: bool, rotary: bool, fit_mask: np.ndarray | None = None) -> Design:
+def build(
+    prep: Prepared, offset: bool, rotary: bool, fit_mask: np.ndarray | None = None, rules: Rules = DEFAULT
+) -> Design:
+    """The baseline and every cause's options on the prepared rows; `rules` travel with the design
+    to every check that reads one (tvsd.analysis.rules)."""
     d = prep.data
     rows, band = prep.rows, prep.band_rows
     y = rows(prep.accel)
@@ -107,7 +111,7 @@ def build(prep: Prepared, offset: bool, rotary: bool, fit_mask: np.ndarray | Non
     assert best is not None
     X = np.column_stack([X0, best[2]])
     names.append("s")
-    design = Design(prep, y, X, tuple(names), moving, best[1], float(np.max(np.abs(u))))
+    design = Design(prep, y, X, tuple(names), moving, best[1], float(np.max(np.abs(u))), rules=rules)
     design.options = _options(prep, rotary, offset)
     return design
 

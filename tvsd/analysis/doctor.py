@@ -116,8 +116,7 @@ def _diagnose(
     rotary = data.units.axis == "rotary"
     say("preparing the regression (band-limited rows, baseline and candidate columns)")
     prep = prepare(data, band)
-    design = absorber.absorb(D.build(prep, data.offset_term, rotary))
-    design.rules = rules
+    design = absorber.absorb(D.build(prep, data.offset_term, rotary, rules=rules))
     measured = design
     if iv and instrument.excited(data):  # closed loop, excited: 2SLS (opt-in,
         # docs/measurements/doctor-closed.md)
@@ -128,9 +127,9 @@ def _diagnose(
             measured=measured,
             expected=rules.expected_maps,
             identified_only=rules.identified_only,
+            rules=rules,
         )
         design = absorber.absorb(instrumented)
-        design.rules = rules
     design.back_emf = data.b_omega > 0 or data.u_unit == "V"
     note = closed_loop_note(data)
     if note is not None:

@@ -27,8 +27,9 @@ lenient to the step, so a true line is rarely refused).
 A window the record does not pin (its error given the other windows at least the drift's whole change) cannot
 show the trend it is to confirm and is left out of the line; at least MIN_WINDOWS must remain.
 
-tvsd.analysis.verdict calls `confirmed`: this trend test, or (DRIFT_TREND_TEST False, the rule
-before it) the per-window refits of the whole baseline it replaced (`window_refits_agree`).
+tvsd.analysis.verdict calls `confirmed`: this trend test, or (the design's rules.drift_trend_test
+False, the rule before it) the per-window refits of the whole baseline it replaced
+(`window_refits_agree`).
 """
 
 from __future__ import annotations
@@ -180,7 +181,7 @@ def agrees(design: D.Design, out: C.Outcome, parameter: str, sign: float) -> Tre
     return trend(c, e, s, sign)
 
 
-# The per-window refits this trend test replaced (DRIFT_TREND_TEST False: the rule before, kept
+# The per-window refits this trend test replaced (rules.drift_trend_test False: the rule before, kept
 # switchable for the matrix tools and scripts/drift_rejudge.py).
 DRIFT_WINDOWS = 5
 
@@ -231,21 +232,19 @@ def window_refits_agree(design: D.Design, out: C.Outcome, parameter: str, sign: 
         est.append(float(w @ g.theta))
         var.append(float(w @ g.cov @ w))
         centres.append(0.5 * (lo + hi))
-    return trend_agrees(np.array(centres), np.array(est), np.array(var), sign)
-
-
-DRIFT_PINNED_WINDOWS = True  # False: every window counted, as before
-DRIFT_TREND_TEST = True  # False: the per-window refits (window_refits_agree), as before
+    pinned = design.rules.drift_pinned_windows
+    return trend_agrees(np.array(centres), np.array(est), np.array(var), sign, pinned)
 
 
 def confirmed(design: D.Design, out: C.Outcome, parameter: str, sign: float) -> bool:
-    """The windowed trend test (`agrees`), or the per-window refits before it."""
-    if not DRIFT_TREND_TEST:
+    """The windowed trend test (`agrees`), or the per-window refits before it (the design's
+    rules.drift_trend_test off)."""
+    if not design.rules.drift_trend_test:
         return window_refits_agree(design, out, parameter, sign)
     return agrees(design, out, parameter, sign).agrees
 
 
-def trend_agrees(x: np.ndarray, y: np.ndarray, var: np.ndarray, sign: float) -> bool:
+def trend_agrees(x: np.ndarray, y: np.ndarray, var: np.ndarray, sign: float, pinned: bool = True) -> bool:
     """The windows' estimates trend the drift's way: a line through them, its slope beyond twice
     its error from their scatter. `sign` is the drift block's coefficient: the parameter's whole
     change over the record, in the estimates' units.
@@ -256,8 +255,9 @@ def trend_agrees(x: np.ndarray, y: np.ndarray, var: np.ndarray, sign: float) -> 
     by 0.12; counted, it refused a 1.5 % R drift at z 61 and a 15 % one at z 12.6, open-loop matrix
     seeds 31, 34). The others count alike, as before: weighting them by their errors instead let
     one well-determined window off the line outweigh the rest (a 0.5 % kv drift at z 29, t 2.5
-    unweighted, 1.7 weighted, seed 31)."""
-    if DRIFT_PINNED_WINDOWS:
+    unweighted, 1.7 weighted, seed 31). `pinned` False: every window counted, as before
+    (rules.drift_pinned_windows)."""
+    if pinned:
         ok = np.isfinite(y) & ~(np.sqrt(np.maximum(var, 0.0)) >= abs(sign))
         x, y = x[ok], y[ok]
     if len(x) < 3:

@@ -19,13 +19,16 @@ the effect: the pilot), state the size in units the test can see:
   cause"); its width in noise units (`units`, u0·b_u) and the part of its torque a Coulomb level cannot
   take (`exposed_units`: the rms of b_u·(clip(u, ±u0) − its mean per direction of motion) over
   the moving samples) — what the data can show: 0 where the command never enters the zone
-  and never pushes against the motion, however wide the zone;
+  and never pushes against the motion, however wide the zone. Given the confirmation's
+  `baseline`, the zone's missing command clip(u, ±u0) less its fit on the confirmation's columns
+  over its rows (as the clip's);
 - friction asymmetry: the share of moving samples in the less-used direction;
 - delay: b_u·rms(u(t) − u(t − τ)) in noise units (matrix.delay_torque) on the recorded command;
 - drift: the term's change over the run in noise units (R: Δ·b_u·rms u, kv: Δ·kv·rms ω,
   friction: Δ·τc), as the open-loop table states it; `visible`: the drift's torque Δ·(t/T)·term
   less what the baseline's own columns (u, ω, sgn ω, a constant) absorb, rms over the moving
-  samples — what refits over time can see of it (tvsd.analysis.drift);
+  samples — what refits over time can see of it (tvsd.analysis.drift); given the confirmation's
+  `baseline`, the torque less its fit on the confirmation's columns over its rows (as the clip's);
 - imbalance, cogging: the revolutions the shaft's angle spans (max − min of ∫ω dt over 2π): a
   torque periodic N times per revolution shows its period only over ≥ 1/N of a turn.
 
@@ -83,9 +86,9 @@ def confirmation_baseline(
         return None
     prep = prepare(data, Band())
     rotary = data.units.axis == "rotary"
-    measured = absorber.absorb(D.build(prep, data.offset_term, rotary))
+    measured = absorber.absorb(D.build(prep, data.offset_term, rotary, rules=rules))
     spin = cause in rules.spin_only_for
-    iv, _ = instrument.instrumented(prep, data.offset_term, rotary, spin_only=spin)
+    iv, _ = instrument.instrumented(prep, data.offset_term, rotary, spin_only=spin, rules=rules)
     return Baseline(measured.X[iv.rows_mask], iv.rows_mask, prep.band_rows)
 
 
@@ -100,7 +103,8 @@ def exposure(
 ) -> dict[str, float]:
     """The measures above for one effect on recorded command `u` (V) and speed `omega` (rad/s);
     `plant` carries J, kv, R, kM, ku, tau_c; `baseline`: the confirmation's rows and columns
-    for a clip's `exposed_units` (closed loop: confirmation_baseline)."""
+    for a clip's or a dead zone's `exposed_units` and a drift's `visible` (closed loop:
+    confirmation_baseline)."""
     if not effect_text:
         return {}
     e = parse_effect(effect_text)
@@ -126,7 +130,10 @@ def exposure(
         inside = moving & (mag < u0)
         out["share"] = float(np.mean(inside | against))
         out["units"] = u0 * b_u / jsv
-        out["exposed_units"] = b_u * beyond_coulomb(u, omega, u0, moving) / jsv
+        if baseline is not None:  # the zone's missing command, clip(u, ±u0), beyond the baseline
+            out["exposed_units"] = b_u * baseline.beyond(np.clip(u, -u0, u0)) / jsv
+        else:
+            out["exposed_units"] = b_u * beyond_coulomb(u, omega, u0, moving) / jsv
     elif e.name == "friction_asymmetry":
         pos = float(np.mean(moving & (omega > 0)))
         neg = float(np.mean(moving & (omega < 0)))
@@ -142,29 +149,40 @@ def exposure(
             "friction": plant.tau_c,
         }[str(p["parameter"])]
         out["units"] = rel * term / jsv
-        out["visible"] = _drift_visible(str(p["parameter"]), rel, u, omega, plant, moving) / jsv
+        if baseline is not None:
+            torque = _drift_torque(str(p["parameter"]), rel, u, omega, plant)
+            out["visible"] = baseline.beyond(torque) / jsv
+        else:
+            out["visible"] = _drift_visible(str(p["parameter"]), rel, u, omega, plant, moving) / jsv
     elif e.name in ("imbalance", "cogging"):
         angle = np.cumsum(omega) * dt
         out["revolutions"] = float(np.max(angle) - np.min(angle)) / (2 * math.pi)
     return {k: (round(v, 5) if math.isfinite(v) else v) for k, v in out.items()}
 
 
+def _drift_torque(parameter: str, rel: float, u: np.ndarray, omega: np.ndarray, plant: Any) -> np.ndarray:
+    """The drift's torque on every sample: its whole change `rel` times the run's fraction t/T
+    times the term it scales. An R drift scales the drive's gain and its back-EMF alike
+    (b_u·u − b_ω·ω, what drives the shaft beyond the EMF: at a steady speed only the friction it
+    balances), so 15 % of it can be a small torque."""
+    tf = np.linspace(0.0, 1.0, len(u))
+    term = {
+        "R": -(plant.kM * plant.ku / plant.R * u - plant.kM * plant.kb / plant.R * omega),
+        "kv": plant.kv * omega,
+        "friction": plant.tau_c * np.sign(omega),
+    }[parameter]
+    return np.asarray(rel * tf * term, dtype=float)
+
+
 def _drift_visible(
     parameter: str, rel: float, u: np.ndarray, omega: np.ndarray, plant: Any, moving: np.ndarray
 ) -> float:
-    """The rms of the drift's torque not explained by a constant baseline. An R drift scales the
-    drive's gain and its back-EMF alike (b_u·u − b_ω·ω, what drives the shaft beyond the EMF: at a
-    steady speed only the friction it balances), so 15 % of it can be a small torque."""
+    """The rms over the moving samples of the drift's torque not explained by a constant baseline
+    (u, ω, sgn ω, a constant)."""
     if np.count_nonzero(moving) < 10:
         return 0.0
-    tf = np.linspace(0.0, 1.0, len(u))[moving]
     um, wm = u[moving], omega[moving]
-    term = {
-        "R": -(plant.kM * plant.ku / plant.R * um - plant.kM * plant.kb / plant.R * wm),
-        "kv": plant.kv * wm,
-        "friction": plant.tau_c * np.sign(wm),
-    }[parameter]
-    d = rel * tf * term
+    d = _drift_torque(parameter, rel, u, omega, plant)[moving]
     A = np.column_stack([um, wm, np.sign(wm), np.ones_like(wm)])
     coef, *_ = np.linalg.lstsq(A, d, rcond=None)
     return float(np.sqrt(np.mean((d - A @ coef) ** 2)))

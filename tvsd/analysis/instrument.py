@@ -53,6 +53,7 @@ from scipy.special import ndtr
 from tvsd.analysis import design as D
 from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.prep import Prepared
+from tvsd.analysis.rules import DEFAULT, Rules
 
 SPUN_SHARE = 0.8
 MIN_COHERENCE = 0.2
@@ -200,6 +201,7 @@ def instrumented(
     expected: bool = False,
     spin_only: bool = False,
     identified_only: bool = False,
+    rules: Rules = DEFAULT,
 ) -> tuple[D.Design, FirstStage]:
     """The design with every command and speed regressor built from the reference's prediction
     (the acceleration, the angle and time as measured).
@@ -211,12 +213,13 @@ def instrumented(
     correlated with the noise), which the bootstrap's i.i.d. whitened errors do not describe and
     the scanned command blocks (built from û) fit. `expected`: the maps' blocks as
     E[f(u) | instruments] (expected_maps); `spin_only`: rows from the spin-up's end
-    (steady_start); `identified_only`: θ_IV along identified directions (structural_left_side)."""
+    (steady_start); `identified_only`: θ_IV along identified directions (structural_left_side);
+    `rules`: the design's (tvsd.analysis.rules)."""
     fs = first_stage(prep, use_exc, spin_only)
     data = dataclasses.replace(prep.data, u=fs.u_hat)
     prep_iv = dataclasses.replace(prep, data=data, speed=fs.speed_hat)
     t0 = float(prep.data.t[steady_start(prep.data, spin_only)])
-    design = D.build(prep_iv, offset, rotary, fit_mask=prep.t_rows >= t0)
+    design = D.build(prep_iv, offset, rotary, fit_mask=prep.t_rows >= t0, rules=rules)
     if expected:
         expected_maps(design, prep, fs)
     if measured is not None:

@@ -215,7 +215,7 @@ def run_case(case: Case, seconds: float, tmp: Path, iv: bool = False) -> dict[st
 
     cfg = case_config(load_config(), case)
     if case.profile in CLOSED_PROFILES:  # a clip sized on the case's own command (matrix_closed)
-        from tvsd.analysis.matrix_closed import sized
+        from tvsd.analysis.closed_plan import sized
 
         case = sized(case, cfg, tmp, seconds)
     effects: tuple[Effect, ...] = (parse_effect(case.effect),) if case.effect else ()

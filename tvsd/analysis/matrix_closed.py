@@ -7,21 +7,12 @@ so each case's outcome is appended as it comes (a batch stopped half way keeps w
 restart skips it), and the cases are ordered round by round (every cause and size once, then the
 next repetition) so a partial batch is balanced.
 
-Variants: `ls` (least squares, the doctor's default), `iv` (two-stage least squares with the
-reference and, when recorded, identify's voltage excitation `u_exc` as instruments),
-`iv_ref` (the reference alone, as before u_exc was recorded), `ls0` (least squares as before this
-branch: every fold in the out-of-sample check, crossval.heldout_gain; the line scan off the
-command's lines), `ls1` (the folds' rule on, the lines still the command's), `ls2` (the
-instrumented confirmation with rules.identified_only and expected_maps: branch cldz), `lsm`
-(the clip confirmed on main's instrumented design, as before branch closedsat), `lsd` (the drift
-confirmed along the identified directions too), `lss` (the clip's confirmation on rows from the
-spin-up's end: instrument.steady_start's spin_only); both measured and left off
-(docs/measurements/closedsat.md). Each is a frozen `Variant` (VARIANTS) whose rules
-(tvsd.analysis.rules) diagnose() gets explicitly. (`lscf`, the drift confirmed with a control
-function, was measured and removed: docs/measurements/closedfix.md.)
+The cases and their order: tvsd.analysis.closed_plan; the variants of the doctor that judge each
+file and what a recording exposes of its effect: tvsd.analysis.closed_judge; the tables:
+tvsd.analysis.matrix (figures), tvsd.analysis.confusion, tvsd.analysis.matrix_limits.
 
     python -m tvsd.analysis.matrix_closed OUT.jsonl [--reps 15] [--nulls 30] [--sizes 3,10]
-        [--seed 0] [--worker 0 --workers 1] [--variants ls,iv] [--reversal]
+        [--seed 0] [--worker 0 --workers 1] [--variants ls,iv]
     python -m tvsd.analysis.matrix_closed 'OUT*.jsonl' --confusion [--variant ls]
     python -m tvsd.analysis.matrix_closed 'OUT*.jsonl' --figures      # matrix.summarise's keys
 
@@ -45,201 +36,13 @@ import json
 import math
 import tempfile
 import time
-from collections import Counter
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from tvsd.analysis import matrix as M
-from tvsd.analysis.rules import DEFAULT, Rules
+from tvsd.analysis.closed_judge import VARIANTS, analyse, seen
+from tvsd.analysis.closed_plan import case_config, plan, plan_cells, round_length, sized
 from tvsd.causes import Effect, parse_effect
-from tvsd.config import Config, load_config
-
-
-@dataclasses.dataclass(frozen=True)
-class Variant:
-    """One way of running the doctor on the matrix's files: its rules, 2SLS as the whole
-    analysis (`iv`), and whether identify's PRBS column is hidden from it (the reference alone)."""
-
-    rules: Rules = DEFAULT
-    iv: bool = False
-    reference_only: bool = False
-
-
-VARIANTS: dict[str, Variant] = {
-    "ls": Variant(),
-    "lsm": Variant(Rules(identified_for=(), expected_for=(), spin_only_for=())),
-    "lsd": Variant(Rules(identified_for=(*DEFAULT.identified_for, "drift"))),
-    "lss": Variant(Rules(spin_only_for=("saturation",))),
-    "ls0": Variant(Rules(skip_undetermined_folds=False, lines_of_reference=False)),
-    "ls1": Variant(Rules(lines_of_reference=False)),
-    "ls2": Variant(Rules(identified_only=True, expected_maps=True)),
-    "iv": Variant(iv=True),
-    "iv_ref": Variant(iv=True, reference_only=True),
-}
-
-
-def plan(n_null: int, reps: int, sizes: tuple[float, ...], seed: int) -> list[M.Case]:
-    """Round by round: in each of `reps` rounds every cause at every size once, and its share of
-    the nulls; each case draws its plant, σv (cycling), scanning speed and effect from its index."""
-    cfg = load_config()
-    names = tuple(M._effects(cfg.plant, cfg.drive.u_max_v, np.random.default_rng(0)))
-    order: list[tuple[str, float]] = []
-    per_round = -(-n_null // max(reps, 1))
-    nulls_left = n_null
-    for _ in range(reps):
-        order += [(c, m) for c in names for m in sizes]
-        k = min(per_round, nulls_left)
-        order += [("none", 0.0)] * k
-        nulls_left -= k
-    order += [("none", 0.0)] * nulls_left
-    return [
-        _case(cfg, np.random.default_rng([seed, 7, k]), 10_000 * seed + k, cause, m, M.SIGMAS[k % 3])
-        for k, (cause, m) in enumerate(order)
-    ]
-
-
-def _case(cfg: Config, g: np.random.Generator, index: int, cause: str, m: float, sigma: float) -> M.Case:
-    """One closed-loop case: a plant drawn from the family, its cause at m × the base, σv."""
-    plant = M._plant(cfg, g)
-    text, torque = None, math.nan
-    if cause != "none":
-        text, torque = M._effects(plant, cfg.drive.u_max_v, g)[cause](m)
-    units = torque / (plant.J * sigma) if math.isfinite(torque) else math.nan
-    if cause == "colored_noise":  # the null's spectrum below the corner (matrix.coloured_sigma)
-        sigma = M.coloured_sigma(sigma, m * M.COLOUR_TAU_S)
-    p = {k2: getattr(plant, k2) for k2 in ("J", "kv", "R", "kM", "tau_c")}
-    rps = M.scan_rps(plant, cfg.drive.u_max_v)
-    return M.Case(index, cause, m, units, text, "identify", sigma, p, rps)
-
-
-def round_length(n_null: int, reps: int, sizes: tuple[float, ...]) -> int:
-    cfg = load_config()
-    names = M._effects(cfg.plant, cfg.drive.u_max_v, np.random.default_rng(0))
-    return len(names) * len(sizes) + -(-n_null // max(reps, 1))
-
-
-def plan_cells(reps: int, sizes: tuple[float, ...], seed: int, nulls: int = 1) -> list[M.Case]:
-    """The per-cause plan (as matrix_open.plan, closed loop): `reps` rounds of every cause at every
-    size once and `nulls` nulls; the i-th case of a cause and size (offset by its place in the
-    round) has σv = SIGMAS[i % 3], so any three consecutive ones of a cell hold every σv. (`plan`
-    cycles σv over the whole order: with a round length divisible by 3 a cell kept one σv.)"""
-    cfg = load_config()
-    names = tuple(M._effects(cfg.plant, cfg.drive.u_max_v, np.random.default_rng(0)))
-    order: list[tuple[str, float, int]] = []
-    count: Counter[tuple[str, float]] = Counter()
-    for _ in range(reps):
-        for j, key in enumerate([(c, m) for c in names for m in sizes] + [("none", 0.0)] * nulls):
-            order.append((*key, count[key] + j))
-            count[key] += 1
-    return [
-        _case(cfg, np.random.default_rng([seed, 13, k]), 10_000 * seed + k, cause, m, M.SIGMAS[i % 3])
-        for k, (cause, m, i) in enumerate(order)
-    ]
-
-
-def case_config(case: M.Case, identify: dict[str, Any] | None = None) -> Config:
-    cfg = M.case_config(load_config(), case)
-    if identify:
-        given: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in identify.items()}
-        cfg = dataclasses.replace(cfg, identify=dataclasses.replace(cfg.identify, **given))
-    return cfg
-
-
-def analyse(path: Path, cfg: Config, variant: str) -> tuple[str, float, dict[str, Any]]:
-    """What the variant named, its time, and why (each cause's z, the threshold, a mismatch's
-    reason): the confusion table's raw material."""
-    from tvsd.analysis.dataset import load
-    from tvsd.analysis.doctor import diagnose
-
-    t0 = time.perf_counter()
-    why: dict[str, Any] = {}
-    how = VARIANTS[variant]
-    try:
-        data = load(path, cfg)
-        if how.reference_only:
-            data = dataclasses.replace(data, refs={k: v for k, v in data.refs.items() if k != "u_exc"})
-        dg = diagnose(data, cfg.plant.v0, iv=how.iv, rules=how.rules)
-        found = dg.cause
-        why = {
-            "z": {s.cause: round(float(s.z), 3) for s in dg.ranked},
-            "threshold": round(float(dg.outcome.threshold), 3),
-            "reason": dg.reason,
-            # which check refused a cause (verdict.WHY's codes): the gate, a refit, the instruments
-            "why_not": {s.cause: s.why_not[0] for s in dg.ranked if s.why_not},
-        }
-    except Exception as exc:  # a bad case is a result too (reported, not hidden)
-        found = f"error: {type(exc).__name__}: {exc}"[:160]
-    return found, time.perf_counter() - t0, why
-
-
-def sized(
-    case: M.Case, cfg: Config, tmp: Path, seconds: float, keep: bool = False, exposed_deadzone: bool = False
-) -> M.Case:
-    """A closed-loop saturation set where the command is: the case recorded without it (same
-    seed: same noise and excitation) gives the command, and u_max sits m × 1 % below its 99 %
-    quantile, as in open loop (matrix.saturation_size). From the drive limit, 0.97–0.90 ×
-    u_max lay above every command of a scanning plant held with ≤ 40 % of the drive. `keep`: the
-    pilot stays in `tmp` (a cache) and is reused. `exposed_deadzone` (`--exposed-deadzone`, opt-in,
-    not measured yet): a dead zone sized by what the pilot exposes, not by u_max
-    (docs/measurements/cldz.md: 0.4 % of u_max per 1× gave 0–80 exposed noise units)."""
-    if case.cause != "saturation" and not (case.cause == "deadzone" and exposed_deadzone):
-        return case
-    from tvsd.sim.record import record
-
-    pilot = tmp / f"pilot{case.seed}.csv"
-    if not (keep and pilot.exists()):
-        record(cfg, pilot, "identify", seconds, (), case.seed, rps=case.rps)
-    from tvsd.analysis.dataset import load
-
-    data = load(pilot, cfg)
-    u = data.u
-    if not keep:
-        pilot.unlink()
-    if case.cause == "deadzone":
-        omega = data.speed if data.speed is not None else np.gradient(data.position, data.t)
-        b_u = cfg.plant.kM * cfg.plant.ku / cfg.plant.R
-        u0, torque = deadzone_size(u, omega, case.size * 0.5 * cfg.plant.J / b_u)
-        units = torque * b_u / (cfg.plant.J * case.sigma_v)
-        return dataclasses.replace(case, effect=f"deadzone:u0={u0:.6g}", noise_units=units)
-    u_max, excess = M.saturation_size(u, case.size)
-    units = excess * cfg.plant.kM * cfg.plant.ku / cfg.plant.R / (cfg.plant.J * case.sigma_v)
-    return dataclasses.replace(case, effect=f"saturation:u_max={u_max:.6g}", noise_units=units)
-
-
-def deadzone_size(u: np.ndarray, omega: np.ndarray, target_v: float) -> tuple[float, float]:
-    """The narrowest zone u0 whose torque beyond a Coulomb level (exposure.beyond_coulomb, in
-    volts of command) on this command reaches `target_v`, and what it reaches: the torque causes'
-    base (m × 0.5·J N·m) in the dead zone's exposed units. Zones up to half the command's 99 %
-    point: wider ones stop the drive (a 12 V zone on a 12 V drive: model_mismatch) or lie past
-    the doctor's scan (design.py: up to half the largest command). Where none reaches the
-    target, the widest, and the row's exposed_units says what it shows."""
-    from tvsd.analysis.exposure import MOVING_RAD_S, beyond_coulomb
-
-    moving = np.abs(omega) > MOVING_RAD_S
-    top = 0.5 * float(np.quantile(np.abs(u), 0.99)) if len(u) else 0.0
-    lo, hi = 0.0, top
-    if beyond_coulomb(u, omega, hi, moving) < target_v:
-        return hi, beyond_coulomb(u, omega, hi, moving)
-    for _ in range(40):  # the exposed torque grows with u0 (more of the command inside)
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if beyond_coulomb(u, omega, mid, moving) < target_v else (lo, mid)
-    return hi, beyond_coulomb(u, omega, hi, moving)
-
-
-def seen(path: Path, case: M.Case, cfg: Config) -> dict[str, float]:
-    """tvsd.analysis.exposure's measures of the case's effect on the recording the doctor got; a
-    clip's exposed units on the rows and columns of its confirmation (the default rules').
-    """
-    from tvsd.analysis.dataset import load
-    from tvsd.analysis.exposure import confirmation_baseline, exposure
-
-    data = load(path, cfg)
-    omega = data.speed if data.speed is not None else np.gradient(data.position, data.t)
-    dt = 1.0 / data.sample_rate_hz
-    baseline = confirmation_baseline(data) if case.cause == "saturation" else None
-    return exposure(case.effect, data.u, omega, cfg.plant, case.sigma_v, dt, baseline)
 
 
 def run(

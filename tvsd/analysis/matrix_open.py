@@ -111,7 +111,7 @@ def run(out: Path, cases: list[M.Case], cache: Path | None = None, seconds: floa
 
 
 def _run(out: Path, cases: list[M.Case], cache: Path | None, seconds: float) -> None:
-    from tvsd.analysis.matrix_closed import analyse, seen
+    from tvsd.analysis.closed_judge import analyse, seen
     from tvsd.sim.record import record
 
     done = (

@@ -2,11 +2,13 @@
 
 The closed-loop matrix (tvsd.analysis.matrix_closed) judges the same recordings by several
 variants of the doctor: the rule before a change, and changes measured but left off. These were
-module-level flags that the matrix set and put back around each analysis, which leaked into any
-later caller if it did not. Here they are one immutable value: `diagnose` puts it on the design
-(tvsd.analysis.design.Design.rules), where the out-of-sample check and the line scan
-(tvsd.analysis.calibrate) and the instrumented confirmation (tvsd.analysis.doctor,
-tvsd.analysis.instrument) read it. DEFAULT is the doctor's rule.
+module-level flags that the matrix (and scripts, and tests) set and put back around each
+analysis, which leaked into any later caller if it did not. Here they are one immutable value:
+`diagnose` gives it to the design it builds (tvsd.analysis.design.build(rules=...), also the
+instrumented designs of tvsd.analysis.instrument), where the out-of-sample check
+(tvsd.analysis.crossval), the line scan (tvsd.analysis.linescan), the drift's windows
+(tvsd.analysis.drift) and the instrumented confirmation (tvsd.analysis.closed_checks) read it.
+A rule before a change is `dataclasses.replace(DEFAULT, field=...)`. DEFAULT is the doctor's rule.
 """
 
 from __future__ import annotations
@@ -19,6 +21,14 @@ class Rules:
     # crossval.heldout_gain: leave out the folds the others do not determine (False: every fold,
     # the rule before; matrix_closed's `ls0`)
     skip_undetermined_folds: bool = True
+    # ... and the folds the others do not pin down (fold leverage ≥ the record's evidence; False:
+    # every fold of full rank judged, the rule before branch heldout; scripts/null_confirmations)
+    skip_unpinned_folds: bool = True
+    # drift.confirmed: the windows' trend test (False: the per-window refits it replaced,
+    # scripts/drift_rejudge.py); in those refits, windows that cannot resolve the drift's whole
+    # change left out (False: every window counted, as before)
+    drift_trend_test: bool = True
+    drift_pinned_windows: bool = True
     # calibrate's line scan: in closed loop the reference's lines, not the command's (`ls0`, `ls1`)
     lines_of_reference: bool = True
     # Every command-side cause's confirmation with θ_IV along identified directions only and the
