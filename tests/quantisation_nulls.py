@@ -108,9 +108,11 @@ def residual(
     return gated, rate, floor
 
 
-def rows(null: Null, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, Prepared]:
+def rows(
+    null: Null, rng: np.random.Generator, band: Band | None = None
+) -> tuple[np.ndarray, np.ndarray, Prepared]:
     """The residual rows (every row), the rows the doctor would keep (moving), and the prepared
-    signals."""
+    signals; `band`: the doctor's (None) or another (scripts/bandfloor_peaks.py's wider band)."""
     fs, n = null.fs, int(null.seconds * null.fs)
     q = 2 * math.pi / null.counts
     h = 1.0 / fs
@@ -133,7 +135,7 @@ def rows(null: Null, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, 
         "null", np.arange(n) * h, np.zeros(n), phi_m, w_meas, fs, 1.0, 0.0, ROTARY, False,
         meta={"encoder_counts_per_rev": str(null.counts)},
     )  # fmt: skip
-    prep = prepare(data, Band())
+    prep = prepare(data, band or Band())
     damping = (1.0 - decay) * fs  # the OU's pull, which the baseline's −c·ω column fits
     model = np.gradient(filtfilt(prep.b, prep.a, w_det), h) - damping * prep.lowpass(w_vib)
     resid = prep.rows(prep.accel - model)

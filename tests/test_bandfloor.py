@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from types import SimpleNamespace
 
@@ -88,3 +89,33 @@ def test_a_peak_at_either_edge_of_the_tested_band_is_not_flanked() -> None:
     assert not noise._flanked(at(49.8 - df))
     assert not noise._flanked(at(54.7))
     assert not noise._flanked(at(0.5 + df))
+
+
+def test_a_line_fitted_narrower_than_a_bin_is_judged_by_its_height_on_the_bins() -> None:
+    """A fresh null of the family (seed 1201, case 62 of scripts/bandfloor_peaks.py --mix: 1152
+    counts, a staircase at 500 Hz, every row kept): its quantisation line at 41.6 Hz stands
+    3.6–3.8× the floor on its two bins (under PEAK_FLOOR_C), but the Lorentzian fitted it with
+    Q 1.5e8, its tails on those bins and its top 10¹² × the floor; the top's power over the
+    window's 1.5 bins read 2.5e6× the floor and named `resonance`. The height is the model's on
+    the bins."""
+    rng = np.random.default_rng([1201, 62])
+    null = dataclasses.replace(qn.draw(rng), profile="staircase")
+    assert (null.counts, null.fs) == (1152, 500.0)
+    resid, rate, floor = qn.residual(null, rng, gaps=False)
+    r = noise.analyse(resid, rate, 1.0, 100.0, floor)
+    assert abs(r.peak_hz - 41.6) < 0.25  # the line is the peak the test found
+    assert 1.0 < r.peak_over_floor < noise.PEAK_FLOOR_C, (r.peak_q, r.peak_over_floor)
+    assert noise.spectral_cause(r, 1e-3) is None
+
+
+def test_the_seen_height_of_a_resolved_peak_is_its_top() -> None:
+    """A peak wider than the window (Q 20 at 40 Hz: 1 Hz half-power width, 4 bins) shows its top
+    on the bin at its centre; a line at a bin's centre narrower than the window shows its power
+    over 1.5 bins; one between bins, only its tails."""
+    fw = np.arange(0.5, 50.01, 0.25)
+    enbw = 1.5 * 0.25
+    assert noise._seen_height(fw, 40.0, 20.0, 7.0, enbw) == 7.0
+    line = noise._seen_height(fw, 40.0, 1e6, 7.0, enbw)
+    assert math.isclose(line, 7.0 * math.pi * 40.0 / 2e6 / enbw)
+    tails = noise._seen_height(fw, 40.125, 1e8, 7.0, enbw)
+    assert tails < 1e-6 * line

@@ -172,6 +172,20 @@ def _peak(
     return float(best.fun), f0, q, power, A
 
 
+def _seen_height(fw: np.ndarray, f0: float, q: float, height: float, enbw: float) -> float:
+    """The fitted peak's height as the spectrum shows it: its Lorentzian's largest value on the
+    band's bins, and no more than its power spread over the Hann window's noise bandwidth `enbw`
+    (a line narrower than that is spread over it, however large the fitted top). The first
+    bound holds a fit far narrower than a bin, which models the excess of the bins beside f0
+    with its tails (A/Q² fixed, A/Q free): a staircase null's line 3.8× the floor on its bins
+    was fitted at Q 1.5e8, and its power over 1.5 bins read 2.5e6× the floor (seed 1201,
+    docs/measurements/peakevid.md)."""
+    if q <= 0:
+        return height
+    on_bins = float(np.max(height / (1.0 + (q * (fw / f0 - f0 / fw)) ** 2)))
+    return min(on_bins, height * min(1.0, math.pi * f0 / (2 * q) / enbw))
+
+
 def effective_segments(segments: int, nper: int) -> float:
     """The number of independent segments a Whittle sum over a Hann, 50 %-overlapped Welch
     spectrum of `segments` segments of `nper` samples is worth, for a smooth spectral shape.
@@ -315,10 +329,7 @@ def spectrum_report(
         whole = (*_colour_fits(fw, pw, kw, a0, b0w), b0w)
     white_w, best_w, b0w = whole
     fun_peak, f0, q, power, height = _peak(fw, pw, a0, b0w, kw)
-    # The peak's height as the spectrum shows it: a line narrower than the Hann window's noise
-    # bandwidth (1.5 bins) is spread over it, however large the fitted Lorentzian's top.
-    enbw = 1.5 * float(f[1] - f[0])
-    seen = height * min(1.0, math.pi * f0 / (2 * q) / enbw) if q > 0 else height
+    seen = _seen_height(fw, f0, q, height, 1.5 * float(f[1] - f[0]))
     over = math.inf if floor is None else seen / max(float(floor(np.array([f0]))[0]), 1e-300)
     return NoiseReport(
         lb_p,
