@@ -169,6 +169,10 @@ class ImuService:
         self._snap_t.clear()
         self._handoff.clear()
         self.reader.start()
+        # its arena's reserve (tvsd.hw.heap) comes before its first poll: "no samples since
+        # start" counts from the polls' start, not from the reserve's page faults
+        await asyncio.to_thread(self.reader.started.wait, 5.0)
+        self._t_start = self.clock.now()
         if os.environ.get(ENV_STALLS, "").strip():  # a soak's measurement: the daemon's own stalls
             from tvsd.sim.sil_watch import StallWatch
 

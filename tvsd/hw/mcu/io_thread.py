@@ -47,7 +47,6 @@ from typing import Any
 
 import numpy as np
 
-from tvsd.hw import heap
 from tvsd.hw.mcu.events import LinkStats
 from tvsd.hw.mcu.framing import Frame, FrameDecoder, encode_frame
 from tvsd.hw.mcu.settings import McuSettings
@@ -60,7 +59,6 @@ READ_CHUNK = 65536
 # SCHED_FIFO priority the daemon asks for this thread under --realtime: below the control thread
 # (80), above the event loop (40)
 IO_THREAD_PRIORITY = 60
-HEAP_RESERVE_BYTES = 4 << 20  # its arena, grown once at its start (tvsd.hw.heap.reserve)
 IDLE_WAKE_S = 0.05  # the longest wait: a stop request or a changed schedule is never later
 TX_RETRY_S = 0.001  # pending bytes the line would not take: tried again this often (no EPOLLOUT:
 # its poll would wait for the flip-buffer work as select did)
@@ -222,9 +220,6 @@ class LinkIo:
     def _run(self) -> None:
         if self.priority is not None:
             self.realtime = request_fifo(self.priority)
-        # its arena grown once (after the daemon's heap.tune()): no mprotect under the GIL later
-        # (37-42 calls, 160 KiB, per 135 s of soak left as glibc sets it: imureader.md)
-        heap.reserve(HEAP_RESERVE_BYTES)
         fd = self._fd
         if fd is None:
             return
