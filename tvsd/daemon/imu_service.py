@@ -48,7 +48,7 @@ from tvsd.hw import imu_calibration as cal
 from tvsd.hw import mpu6050_registers as reg
 from tvsd.hw.i2c_bus import open_bus
 from tvsd.hw.imu_clock import Clock, MonotonicClock
-from tvsd.hw.imu_reader import READER_PRIORITY, ImuReader
+from tvsd.hw.imu_reader import HEAP_RESERVE_BYTES, READER_PRIORITY, ImuReader
 from tvsd.hw.imu_sensor_reader import ImuBatch, SensorReader
 from tvsd.hw.imu_settings import SA_AXES, ImuSettings, to_si
 from tvsd.hw.loop_handoff import LoopHandoff
@@ -162,12 +162,17 @@ class ImuService:
         self.reader = ImuReader(list(self._sensors.values()), self.clock, self._sink, self._polled)
         if _fifo_here():  # tvsd --realtime: the loop's thread is SCHED_FIFO; the reader above it
             self.reader.priority = READER_PRIORITY
+        self.reader.heap_reserve = HEAP_RESERVE_BYTES  # taken only after the daemon's heap.tune()
         self._t_start = self.clock.now()
         self._last_data.clear()
         self._snap.clear()
         self._snap_t.clear()
         self._handoff.clear()
         self.reader.start()
+        # its arena's reserve (tvsd.hw.heap) comes before its first poll: "no samples since
+        # start" counts from the polls' start, not from the reserve's page faults
+        await asyncio.to_thread(self.reader.started.wait, 5.0)
+        self._t_start = self.clock.now()
         if os.environ.get(ENV_STALLS, "").strip():  # a soak's measurement: the daemon's own stalls
             from tvsd.sim.sil_watch import StallWatch
 

@@ -177,9 +177,12 @@ def _io_side_realtime() -> None:
 async def _serve(args: argparse.Namespace, cfg: Config, config_text: str) -> int:
     from tvsd.control.realtime import not_realtime_warning
     from tvsd.daemon.app import Daemon
+    from tvsd.hw import heap
 
     if args.realtime:
         _io_side_realtime()
+        # the threads' heaps kept once grown: no memory-map calls under the GIL (tvsd.hw.heap)
+        print(f"tvsd: malloc: {heap.tune()}", file=sys.stderr)
     else:
         print(not_realtime_warning("without --realtime"), file=sys.stderr)
     daemon = Daemon(

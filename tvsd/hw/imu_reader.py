@@ -14,6 +14,7 @@ import os
 import threading
 from collections.abc import Callable
 
+from tvsd.hw import heap
 from tvsd.hw import imu_joint as joint
 from tvsd.hw.imu_clock import Clock, MonotonicClock
 from tvsd.hw.imu_sensor_reader import ImuBatch, SensorReader
@@ -27,6 +28,13 @@ log = logging.getLogger(__name__)
 # 83 ms at 1 kHz: the reader may wait for the GIL, never for the loop's turn on the CPU.
 READER_PRIORITY = 50
 WAKE_LATE_S = 0.02  # a wake-up this late is counted (ImuReader.wake_late): a poll interval
+# The reader thread's arena, grown and touched once at its start (tvsd.hw.heap.reserve, after
+# the daemon's heap.tune()): its polls then allocate from memory already mapped, and never wait
+# for the memory-map lock while they hold the GIL (453 ms once: docs/measurements/daemonfix.md §4;
+# held by khugepaged for 100 ms in a soak: docs/measurements/imureader.md). Left as glibc sets it,
+# its heap grew by ~1 MiB in 135 s of soak (84 mprotect calls; its blocks freed on the event
+# loop's thread are reused there): 16 MiB is ~40 min of that growth.
+HEAP_RESERVE_BYTES = 16 << 20
 
 
 def asyncio_sink(
@@ -55,6 +63,9 @@ class ImuReader:
         polling thread."""
         self.sensors, self.clock, self.on_batch, self.on_poll = sensors, clock, on_batch, on_poll
         self.priority: int | None = None  # SCHED_FIFO for the thread (start()), if set
+        self.heap_reserve = 0  # bytes of arena the thread grows first (tvsd.hw.heap.reserve)
+        self.heap_reserved = False  # whether it did
+        self.started = threading.Event()  # set by the thread before its first poll
         self.realtime = "not requested"  # what the OS said to it
         self._stop = threading.Event()
         self._lock = threading.Lock()  # status() may come from another thread than the polls
@@ -121,6 +132,7 @@ class ImuReader:
 
     def start(self) -> None:
         self._stop.clear()
+        self.started.clear()
         self._thread = threading.Thread(target=self._run, name="imu-reader", daemon=True)
         self._thread.start()
 
@@ -132,6 +144,9 @@ class ImuReader:
             except OSError as exc:
                 self.realtime = f"refused: {exc.strerror or exc}"
                 log.warning("IMU reader thread SCHED_FIFO %s", self.realtime)
+        if self.heap_reserve:  # 16 MiB: 20-330 ms of page faults on this thread, before any poll
+            self.heap_reserved = heap.reserve(self.heap_reserve)
+        self.started.set()
         while not self._stop.is_set():
             self.step()
             self._wait()
