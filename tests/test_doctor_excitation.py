@@ -51,6 +51,7 @@ def test_stuck_drive_is_refused_as_no_excitation(tmp_path, capsys):
     assert "no excitation" in err and err.count("\n") == 1, err
 
 
+@pytest.mark.slow  # a whole analysis: 55 s on a loaded 2-core machine
 def test_drive_moving_briefly_near_the_threshold_is_analysed(tmp_path, capsys):
     """5 ms kicks: the shaft moves ~2.5 % of the time, peaks ~36 σ. Its moving rows are within 2×
     of the ROWS_PER_COLUMN·columns the check needs, and it is analysed, not refused."""
