@@ -1,6 +1,7 @@
 """The model doctor: fit the paper's model, find what it gets wrong, name the cause, measure the gain.
 
-1. Sense of the input (tvsd.analysis.sense): too short, constant, absurd → one line, exit 2.
+1. Sense of the input (tvsd.analysis.sense): too short, constant, absurd → one line, exit 2;
+   a shaft that never moves clear of its speed noise (tvsd.analysis.excitation) → the same.
 2. Baseline: the paper's rigid model with every coefficient free (tvsd.analysis.design), so the
    motor need not be the config's; fitted by generalised least squares under an AR noise model
    (tvsd.analysis.gls), its coefficients read as the paper's parameters (tvsd.analysis.physical).
@@ -31,7 +32,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from tvsd.analysis import absorber, heldout_sim, instrument, quantisation, selection, sense
+from tvsd.analysis import absorber, excitation, heldout_sim, instrument, quantisation, selection, sense
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis.closed_checks import LOOP_PEAK, closed_loop_note, instrumented_check, peak_in_plant
@@ -117,6 +118,7 @@ def _diagnose(
     say("preparing the regression (band-limited rows, baseline and candidate columns)")
     prep = prepare(data, band)
     design = absorber.absorb(D.build(prep, data.offset_term, rotary, rules=rules))
+    excitation.check_moving(prep, design.X.shape[1])  # a stuck drive: no excitation, exit 2
     measured = design
     if iv and instrument.excited(data):  # closed loop, excited: 2SLS (opt-in,
         # docs/measurements/doctor-closed.md)
