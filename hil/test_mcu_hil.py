@@ -23,7 +23,10 @@ from typing import Any
 
 import pytest
 
-from tvsd.hw.mcu.link import FaultEvent, LinkSettings, McuLink, PulseEvent, StateSample
+from tvsd.hw.mcu.events import FaultEvent, PulseEvent
+from tvsd.hw.mcu.link import McuLink
+from tvsd.hw.mcu.placement import StateSample
+from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import load_spec
 from tvsd.hw.mcu.steppers import Steppers
 
@@ -39,7 +42,7 @@ pytestmark = [
 
 def run(fn: Callable[[McuLink], Coroutine[Any, Any, None]], **kw: Any) -> None:
     async def main() -> None:
-        async with McuLink(LinkSettings(port=PORT, baud=BAUD), **kw) as link:
+        async with McuLink(McuSettings(port=PORT, baud=BAUD), **kw) as link:
             await fn(link)
 
     asyncio.run(main())

@@ -15,7 +15,8 @@ import pytest
 from conftest import until
 
 from tvsd.errors import DeviceError
-from tvsd.hw.mcu.link import McuLink, StateSample
+from tvsd.hw.mcu.link import McuLink
+from tvsd.hw.mcu.placement import StateSample
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import ProtocolSpec
 from tvsd.sim import emulator

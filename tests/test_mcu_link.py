@@ -18,8 +18,11 @@ from conftest import until
 from fake_mcu_side import answer_handshake, read_host_frames
 
 from tvsd.errors import DeviceError, ProtocolError, UsageError
+from tvsd.hw.mcu.events import PulseEvent, Refusal
 from tvsd.hw.mcu.framing import Frame, FrameDecoder, encode_frame
-from tvsd.hw.mcu.link import McuLink, McuSettings, PulseEvent, Refusal, StateSample
+from tvsd.hw.mcu.link import McuLink
+from tvsd.hw.mcu.placement import StateSample
+from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import load_spec
 
 SPEC = load_spec()

@@ -23,10 +23,13 @@ from conftest import until
 
 from tvsd.control.runner import Runner
 from tvsd.daemon.main import SWITCH_INTERVAL_S
+from tvsd.hw.mcu.events import FaultEvent
 from tvsd.hw.mcu.io_bench import GilHold
 from tvsd.hw.mcu.io_thread import IO_THREAD_PRIORITY
-from tvsd.hw.mcu.link import FaultEvent, McuLink, McuSettings, StateSample
+from tvsd.hw.mcu.link import McuLink
+from tvsd.hw.mcu.placement import StateSample
 from tvsd.hw.mcu.receiving import EVENT_QUEUE, Receiver
+from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import load_spec
 from tvsd.sim import virtual_mcu as vm
 

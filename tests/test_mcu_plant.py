@@ -19,7 +19,10 @@ import pytest
 from conftest import until
 
 from tvsd.config import Config, VibrationConfig, load_config
-from tvsd.hw.mcu.link import McuLink, McuSettings, PulseEvent, StateSample
+from tvsd.hw.mcu.events import PulseEvent
+from tvsd.hw.mcu.link import McuLink
+from tvsd.hw.mcu.placement import StateSample
+from tvsd.hw.mcu.settings import McuSettings
 from tvsd.model.plant import S_OMEGA
 from tvsd.scan.geometry import doe_b_target, inverse
 from tvsd.sim import mcu_plant as mp

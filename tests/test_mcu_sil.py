@@ -18,7 +18,10 @@ from conftest import until
 
 import tvsd.cli.main as cli_main
 from tvsd.errors import DeviceError
-from tvsd.hw.mcu.link import FaultEvent, McuLink, McuSettings, PulseEvent, StateSample
+from tvsd.hw.mcu.events import FaultEvent, PulseEvent
+from tvsd.hw.mcu.link import McuLink
+from tvsd.hw.mcu.placement import StateSample
+from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import load_spec
 from tvsd.hw.mcu.steppers import AxisSettings, Steppers, StepperSettings
 from tvsd.sim import virtual_mcu as vm

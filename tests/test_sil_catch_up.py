@@ -21,8 +21,10 @@ import pytest
 from conftest import until
 
 from tvsd.config import load_config
+from tvsd.hw.mcu.events import FaultEvent
 from tvsd.hw.mcu.io_thread import IO_THREAD_PRIORITY
-from tvsd.hw.mcu.link import FaultEvent, McuLink, McuSettings
+from tvsd.hw.mcu.link import McuLink
+from tvsd.hw.mcu.settings import McuSettings
 from tvsd.sim import mcu_plant as mp
 from tvsd.sim import virtual_mcu as vm
 from tvsd.sim.sil_process import SIL_PRIORITY

@@ -20,10 +20,10 @@ from pathlib import Path
 import pytest
 
 from tvsd.cli.daemon_cmds import show
-from tvsd.hw.mcu.link import TTY_RISK, McuLink
+from tvsd.hw.mcu.link import McuLink
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import load_spec
-from tvsd.hw.mcu.tty_workers import TtyWorkerBoost
+from tvsd.hw.mcu.tty_workers import TTY_RISK, TtyWorkerBoost
 
 
 def _status_of(settings: McuSettings, io_priority: int | None) -> str:

@@ -165,6 +165,7 @@ def _markdown(dg: Diagnosis, s: dict[str, Any]) -> str:
         f"{'the whole file' if dg.heldout_file else 'the first two thirds'}, judged on "
         f"{'the held-out file' if dg.heldout_file else 'the last third'}.",
         "",
+        *_window_lines(s.get("window")),
         "## The paper's model, fitted",
         "",
         "| parameter | value | std. error |",
@@ -247,6 +248,18 @@ def _markdown(dg: Diagnosis, s: dict[str, Any]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _window_lines(w: dict[str, Any] | None) -> list[str]:
+    """The window analysed (tvsctl analyze --start/--end), when one was asked."""
+    if w is None:
+        return []
+    asked = " ".join(f"--{k} {w[f'{k}_s']:g}" for k in ("start", "end") if w[f"{k}_s"] is not None)
+    return [
+        f"Window analysed ({asked}): t = {w['t_first_s']:g} to {w['t_last_s']:g} s of the file, "
+        f"{w['rows']} of its {w['rows_in_file']} rows; the rest was left out.",
+        "",
+    ]
 
 
 def _causes_markdown(causes: list[dict[str, Any]]) -> list[str]:

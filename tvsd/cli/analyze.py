@@ -20,11 +20,24 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "analyze",
         help="model doctor: what the paper's model gets wrong in a recording, and why",
         description="Fit the paper's model to a recording (CSV contract or EMPS .mat), find what it "
-        "misses, name the cause, extend the model and measure the gain on data not used for fitting.",
+        "misses, name the cause, extend the model and measure the gain on data not used for fitting. "
+        "--start/--end analyse a window of it (seconds of its t column): cut a warm-up or a shutdown.",
     )
     p.add_argument("file", type=Path, help="recording CSV (docs/architecture.md) or EMPS .mat file")
     p.add_argument(
         "--heldout", type=Path, metavar="FILE", help="judge on this recording (default: last third)"
+    )
+    p.add_argument(
+        "--start",
+        type=argtypes.seconds,
+        metavar="S",
+        help="analyse only rows with t >= S (seconds of the file's t column): cut a warm-up",
+    )
+    p.add_argument(
+        "--end",
+        type=argtypes.seconds,
+        metavar="E",
+        help="analyse only rows with t <= E: cut a shutdown (the --heldout file is judged whole)",
     )
     p.add_argument("--json", action="store_true", help="print the JSON object of docs/architecture.md")
     p.add_argument("--report", type=Path, metavar="DIR", help="write report.md and figures into DIR")
@@ -52,6 +65,7 @@ def _run(args: argparse.Namespace) -> int:
     from tvsd.analysis.noise import COLOUR_P
     from tvsd.analysis.prep import EMPS_BAND, Band, check_filled
     from tvsd.analysis.summary import as_json
+    from tvsd.analysis.window import check_order, cut
 
     cfg = load_config(args.config) if args.config else load_config(params=args.params)
     start = time.monotonic()
@@ -64,9 +78,15 @@ def _run(args: argparse.Namespace) -> int:
         if show:
             print(f"[{time.monotonic() - start:5.1f} s] {message}", file=sys.stderr, flush=True)
 
+    check_order(args.start, args.end)  # before the file is read
     if args.report:
         _check_report_dir(args.report)  # before the analysis's seconds, not after them
     data = load(args.file, cfg)
+    window = None
+    if args.start is not None or args.end is not None:
+        data, window = cut(data, args.start, args.end)
+        if window.note:
+            warn(window.note)
     heldout = load(args.heldout, cfg) if args.heldout else None
     band = EMPS_BAND if data.units.axis == "linear" else Band()
     for dataset in (data, heldout):  # refused in one line where the doctor would not fit in memory
@@ -78,6 +98,8 @@ def _run(args: argparse.Namespace) -> int:
             warn(note)
     dg = diagnose(data, cfg.plant.v0, heldout=heldout, band=band, progress=progress, seed=args.seed)
     summary = as_json(dg)
+    if window is not None:  # before the report, which states it too
+        summary["window"] = window.as_json()
     if args.report:
         progress("writing the report")
         try:
@@ -88,6 +110,8 @@ def _run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(summary)
         return EXIT_OK
+    if window is not None:
+        print(window.line())
     print(summary["summary"])
     print()
     if len(summary["causes"]) > 1:

@@ -44,6 +44,19 @@ def number(low: float, high: float, unit: str = "", *, low_open: bool = False) -
     return parse
 
 
+def seconds(text: str) -> float:
+    """A time in seconds on a recording's t column: any finite number (t may start anywhere)."""
+    try:
+        x = float(text)
+    except ValueError:
+        x = math.nan
+    if not math.isfinite(x):
+        raise argparse.ArgumentTypeError(
+            f"expected seconds of the recording's t column (a finite number, e.g. 5 or 2.5), got {text!r}"
+        )
+    return x
+
+
 def count(low: int, high: int, what: str) -> Callable[[str], int]:
     """A whole number in [low, high]."""
 

@@ -22,7 +22,8 @@ from typing import Any
 from tvsd.cli import argtypes
 from tvsd.cli.output import print_json, print_pairs, print_table
 from tvsd.errors import EXIT_FAILURE, EXIT_OK, DeviceError, UsageError
-from tvsd.hw.mcu.link import McuLink, McuSettings
+from tvsd.hw.mcu.link import McuLink
+from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import load_spec
 
 DEFAULT_BAUD = 2_000_000

@@ -13,7 +13,7 @@ from typing import Any
 from tvsd.daemon.commands import Commands
 from tvsd.daemon.faults import FaultKind
 from tvsd.daemon.state import DaemonState
-from tvsd.hw.mcu.link import PulseEvent
+from tvsd.hw.mcu.events import PulseEvent
 from tvsd.scan.points import Point
 from tvsd.scan.pulses import OPTICAL
 

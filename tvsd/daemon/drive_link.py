@@ -49,9 +49,11 @@ from tvsd.config import Config
 from tvsd.control.runner import Runner
 from tvsd.daemon.frame_chain import FrameChain
 from tvsd.errors import ConfigError, DeviceError, UsageError
+from tvsd.hw.mcu.events import FaultEvent, PulseEvent
 from tvsd.hw.mcu.io_thread import IO_THREAD_PRIORITY
-from tvsd.hw.mcu.link import FaultEvent, McuLink, PulseEvent, StateSample
+from tvsd.hw.mcu.link import McuLink
 from tvsd.hw.mcu.messages import McuStats
+from tvsd.hw.mcu.placement import StateSample
 from tvsd.hw.mcu.spec import CONTROL_TICK_HZ
 from tvsd.hw.mcu.steppers import Steppers
 

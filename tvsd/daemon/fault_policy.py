@@ -24,7 +24,7 @@ from tvsd.control.runner import LoopFault
 from tvsd.daemon.faults import LOOP_FAULTS, FaultEntry, FaultKind
 from tvsd.daemon.recording_control import RecordingControl
 from tvsd.daemon.state import DaemonState
-from tvsd.hw.mcu.link import FaultEvent
+from tvsd.hw.mcu.events import FaultEvent
 
 S = DaemonState
 HOLD_LATCH_LOOK_S = 0.02  # after the link's loss, when to look for the control thread's latch

@@ -27,7 +27,9 @@ def bench_clock_sync(seconds: float = 60.0, speed: float = 10.0, duty: float = 0
 
 async def _bench(seconds: float, speed: float, duty: float) -> dict[str, Any]:
     from tvsd.config import load_config
-    from tvsd.hw.mcu.link import FaultEvent, McuLink, McuSettings
+    from tvsd.hw.mcu.events import FaultEvent
+    from tvsd.hw.mcu.link import McuLink
+    from tvsd.hw.mcu.settings import McuSettings
 
     cfg = load_config()
     errs: list[tuple[float, float]] = []  # (sim s, error s)

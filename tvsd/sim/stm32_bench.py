@@ -27,7 +27,8 @@ import statistics
 from dataclasses import dataclass, replace
 from typing import Any
 
-from tvsd.hw.mcu.link import McuLink, StateSample
+from tvsd.hw.mcu.link import McuLink
+from tvsd.hw.mcu.placement import StateSample
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.spec import FRAME_OVERHEAD, load_spec
 from tvsd.sim import emulator, qemu_mcu

@@ -1,8 +1,8 @@
 """What the MCU link hands its users: typed events, its counters, the identity check, the port.
 
-Shared by the link's halves (``link``: life cycle, requests, sending; ``receiving``: frame
-handlers and the queue to the event loop; ``io_thread``: the port's thread), so none of them
-imports another for a type.
+Shared by the link's parts (``link``: wiring, life cycle, reporting; ``sending``: typed frames;
+``queries``: requests awaited; ``receiving``: frame handlers and the queue to the event loop;
+``io_thread``: the port's thread), so none of them imports another for a type.
 """
 
 from __future__ import annotations

@@ -1,11 +1,13 @@
-"""McuLink: the serial link to the MCU — life cycle, requests and sending.
+"""McuLink: the serial link to the MCU — the public object: wiring, life cycle, reporting.
 
-Three parts, one owner each: this module opens the port, runs the requests (identify, ping,
-stats) for the event loop and offers the typed sends (any thread); ``io_thread.LinkIo`` owns the
-port's descriptor on its own thread (reads, writes, the heartbeat that arms the firmware's
-watchdog, the loss check); ``receiving.Receiver`` handles the frames on that thread and hands the
-event loop what it must see through a bounded queue. Where a stamp lands on the MCU's unwrapped
-tick count is the ``TickPlacer``'s business (``placement``).
+Five parts, one owner each: this module builds the others and opens and closes the port, and
+is the one object callers hold; ``io_thread.LinkIo`` owns the port's descriptor on its own thread
+(reads, writes, the heartbeat that arms the firmware's watchdog, the loss check);
+``receiving.Receiver`` handles the frames on that thread and hands the event loop what it must
+see through a bounded queue; ``sending.Sender`` packs the typed frames (any thread) and keeps
+the heartbeats in flight; ``queries.Queries`` runs the requests the event loop awaits (identify,
+ping, stats). Where a stamp lands on the MCU's unwrapped tick count is the ``TickPlacer``'s
+business (``placement``).
 
 Callbacks: ``on_state`` and ``on_batch`` run on the I/O thread (keep them short, allocate
 little: they are the control thread's input); ``on_pulse``, ``on_fault``, ``on_stepper``,
@@ -16,49 +18,28 @@ from __future__ import annotations
 
 import asyncio
 import statistics
-import struct
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import serial
 
-from tvsd.errors import DeviceError, ProtocolError, UsageError
 from tvsd.hw.mcu.clock import ClockSync
 from tvsd.hw.mcu.clock import warm_up as warm_up_clock_fit
-from tvsd.hw.mcu.events import (
-    FLASH_HINT,
-    FaultEvent,
-    LinkStats,
-    PulseEvent,
-    Refusal,
-    check_identity,
-    open_serial,
-)
+from tvsd.hw.mcu.events import FaultEvent, LinkStats, PulseEvent, Refusal, open_serial
 from tvsd.hw.mcu.framing import Frame, FrameDecoder
 from tvsd.hw.mcu.io_thread import LinkIo
 from tvsd.hw.mcu.messages import Identify, McuStats, StepperState
 from tvsd.hw.mcu.placement import StateSample
+from tvsd.hw.mcu.queries import Queries
 from tvsd.hw.mcu.receiving import Receiver
+from tvsd.hw.mcu.sending import Sender
 from tvsd.hw.mcu.settings import McuSettings
 from tvsd.hw.mcu.shared_tx import SharedTx
 from tvsd.hw.mcu.spec import ProtocolSpec, load_spec
 from tvsd.hw.mcu.tty_worker_state import restore_stale
-from tvsd.hw.mcu.tty_workers import TtyWorkerBoost, mode_from_env
+from tvsd.hw.mcu.tty_workers import TtyWorkerBoost, describe, mode_from_env
 
-__all__ = [
-    "FLASH_HINT",
-    "FaultEvent",
-    "LinkStats",
-    "McuLink",
-    "McuSettings",
-    "PulseEvent",
-    "Refusal",
-    "StateSample",
-    "check_identity",
-    "open_serial",
-]
 
 class _ReceiverCallback:
     """An ``on_*`` attribute of McuLink that is its receiver's (set after construction too)."""
@@ -71,11 +52,6 @@ class _ReceiverCallback:
 
     def __set__(self, link: McuLink, value: Any) -> None:
         setattr(link._rx, self.name, value)
-
-
-# what a link without its tty workers raised risks, for the status (siltiming.md)
-TTY_RISK = "under CPU load the MCU's bytes may wait behind other programs (faults mcu_stale, mcu_watchdog)"
-HB_FORGET_S = 2.0  # a heartbeat unanswered this long will never be (40 heartbeats at 50 ms)
 
 
 class McuLink:
@@ -114,7 +90,6 @@ class McuLink:
     ) -> None:
         self.settings = settings
         self.spec = spec or load_spec(settings.spec_path)
-        self._ids = {m.name: m for m in self.spec.messages}
         self.identity: Identify | None = None
         self._stats = LinkStats()
         self._decoder = FrameDecoder(self.spec.sync, self.spec.max_payload, self.spec.payload_sizes("m2h"))
@@ -128,7 +103,7 @@ class McuLink:
             on_frames=self._frames,
             on_link=self._link_change,
             on_gone=self._gone,
-            heartbeat=self._heartbeat,
+            heartbeat=self._scheduled_heartbeat,
             liveness=liveness,
             priority=io_priority,
             shared=shared_tx,
@@ -146,6 +121,8 @@ class McuLink:
             on_link=on_link,
             on_refused=on_refused,
         )
+        self._tx = Sender(self.spec, self._io.send, self._rx.hb_sent)
+        self._queries = Queries(settings, self.spec, self._rx, self._tx, self._io)
         # --realtime: the kernel's tty workers too, which hand every received byte to the reader
         # (tvsd.hw.mcu.tty_workers: preempted, they held the MCU's frames up to 1.2 s); what it
         # changes is kept in `state_dir` (the daemon's runtime dir) for a daemon killed meanwhile
@@ -163,6 +140,9 @@ class McuLink:
 
     def _gone(self, why: str) -> None:
         self._rx.on_gone(f"{self.settings.port}: {why}")
+
+    def _scheduled_heartbeat(self) -> bool:
+        return self._tx.scheduled_heartbeat()
 
     # --- life cycle ---------------------------------------------------------------------------
 
@@ -208,26 +188,7 @@ class McuLink:
 
     async def identify(self, attempts: int = 3) -> Identify:
         """Ask the MCU who it is; refuse a protocol version or command table other than ours."""
-        loop = self._require_loop()
-        ident: Identify | None = None
-        for _ in range(attempts):  # the first request may land while the MCU is resyncing
-            fut: asyncio.Future[Identify] = loop.create_future()
-            self._rx.identify_waiters.append(fut)
-            self._send("identify_req")
-            try:
-                ident = await asyncio.wait_for(fut, self.settings.identify_timeout_s / attempts)
-                break
-            except TimeoutError:
-                continue
-        if ident is None:
-            raise DeviceError(
-                f"no answer from the MCU on {self.settings.port} within "
-                f"{self.settings.identify_timeout_s} s: is the firmware flashed, the board "
-                f"powered and the baud rate ({self.settings.baud}) the firmware's?"
-            )
-        check_identity(ident, self.spec, self.settings.port)
-        if ident.clock_hz == 0:
-            raise ProtocolError("MCU reports a clock of 0 Hz: its identify frame is wrong")
+        ident = await self._queries.identify(self._require_loop(), attempts)
         self.identity = ident
         self._rx.clock = ClockSync(ident.clock_hz, self.settings.clock)
         return ident
@@ -244,39 +205,10 @@ class McuLink:
 
     async def ping(self, timeout_s: float = 0.5) -> float:
         """One heartbeat round trip; returns the RTT in seconds."""
-        loop = self._require_loop()
-        fut: asyncio.Future[float] = loop.create_future()
-        deadline = loop.time() + timeout_s
-        host_us = self._host_us()
-        self._rx.hb_waiters[host_us] = fut  # before the send: the answer comes on another thread
-        try:
-            while not self._send_heartbeat(host_us):  # output full: let it drain
-                if self._io.fd is None or loop.time() > deadline:
-                    raise DeviceError(
-                        f"cannot send to the MCU on {self.settings.port}: the link is closed or "
-                        f"its output stayed full for {timeout_s} s"
-                    )
-                await asyncio.sleep(0.001)
-                self.flush()
-            return await asyncio.wait_for(fut, max(0.0, deadline - loop.time()))
-        except TimeoutError:
-            raise DeviceError(
-                f"the MCU on {self.settings.port} did not answer a heartbeat within {timeout_s} s"
-            ) from None
-        finally:
-            self._rx.hb_waiters.pop(host_us, None)
+        return await self._queries.ping(self._require_loop(), timeout_s)
 
     async def request_stats(self, timeout_s: float = 0.5) -> McuStats:
-        loop = self._require_loop()
-        fut: asyncio.Future[McuStats] = loop.create_future()
-        self._rx.stats_waiters.append(fut)
-        self._send("stats_req")
-        try:
-            return await asyncio.wait_for(fut, timeout_s)
-        except TimeoutError:
-            raise DeviceError(
-                f"the MCU on {self.settings.port} did not answer stats_req within {timeout_s} s"
-            ) from None
+        return await self._queries.stats(self._require_loop(), timeout_s)
 
     async def stop_heartbeat(self) -> None:
         """Stop sending heartbeats: the MCU's watchdog then switches its outputs off."""
@@ -299,52 +231,19 @@ class McuLink:
     def send_pwm(self, duty: float) -> bool:
         """Motor duty in [-1, 1] (clamped; NaN means 0: a bad command must not spin the motor).
         Safe from any thread, never blocks; False if the frame was refused."""
-        if duty != duty:  # NaN
-            duty = 0.0
-        value = round(max(-1.0, min(1.0, duty)) * 32767)
-        return self._send("pwm_set", value)
+        return self._tx.pwm(duty)
 
     def send_laser(self, on: bool) -> bool:
-        return self._send("laser_set", 1 if on else 0)
+        return self._tx.laser(on)
 
     def send_stepper_move(self, axis: int, steps: int, rate_sps: int, accel_sps2: int) -> bool:
-        return self._send("stepper_move", axis, steps, rate_sps, accel_sps2)
+        return self._tx.stepper_move(axis, steps, rate_sps, accel_sps2)
 
     def send_stepper_home(self, axis: int) -> bool:
-        return self._send("stepper_home", axis)
+        return self._tx.stepper_home(axis)
 
     def send_config(self, watchdog_ms: int, state_div: int, max_on_ms: int) -> bool:
-        return self._send("config_set", watchdog_ms, state_div, max_on_ms)
-
-    @staticmethod
-    def _host_us() -> int:
-        return int(time.monotonic() * 1e6) & 0xFFFF_FFFF
-
-    def _heartbeat(self) -> bool:
-        """The I/O thread's scheduled heartbeat."""
-        sent = self._rx.hb_sent
-        if len(sent) > 64:  # forget round trips that will never come back
-            now = time.monotonic()
-            for k, t in list(sent.items()):
-                if now - t > HB_FORGET_S:
-                    sent.pop(k, None)
-        return self._send_heartbeat(self._host_us())
-
-    def _send_heartbeat(self, host_us: int) -> bool:
-        self._rx.hb_sent[host_us] = time.monotonic()  # before the send: the ack may come first
-        if self._send("heartbeat", host_us):
-            return True
-        self._rx.hb_sent.pop(host_us, None)
-        return False
-
-    def _send(self, name: str, *values: int) -> bool:
-        m = self._ids[name]
-        try:
-            payload = m.codec.pack(*values)
-        except struct.error as exc:
-            fields = ", ".join(f"{f.name}={v}" for f, v in zip(m.fields, values, strict=False))
-            raise UsageError(f"cannot send {name}({fields}): {exc}") from exc
-        return self._io.send(m.id, payload, (name, values))
+        return self._tx.config(watchdog_ms, state_div, max_on_ms)
 
     def flush(self) -> None:
         self._io.flush()
@@ -360,7 +259,7 @@ class McuLink:
         return self._io.tx_error
 
     def message_id(self, name: str) -> int:
-        return self._ids[name].id
+        return self._tx.message_id(name)
 
     @property
     def shared_tx(self) -> SharedTx:
@@ -376,12 +275,7 @@ class McuLink:
     def tty_workers(self) -> str:
         """What raising the kernel's tty workers got (tvsd.hw.mcu.tty_workers; --realtime only).
         Refused or off under --realtime, it says what that risks (`tvsctl status` shows it)."""
-        if self._tty_mode is None:
-            return "not requested"
-        if self._tty_workers is None:
-            return f"off (mcu.tty_workers): {TTY_RISK}"
-        status = self._tty_workers.status
-        return f"{status}: {TTY_RISK}" if status.startswith("refused") else status
+        return describe(self._tty_mode, self._tty_workers)
 
     @property
     def steppers(self) -> dict[int, StepperState]:

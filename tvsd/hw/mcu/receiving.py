@@ -42,7 +42,7 @@ from tvsd.hw.mcu.spec import ProtocolSpec
 log = logging.getLogger("tvsd.hw.mcu.link")  # the link's log, whichever part writes it
 
 REFUSAL_LOG_INTERVAL_S = 1.0  # the same refusal is logged at most this often (with a count)
-KERNEL_HB_FORGET_S = 2.0  # an ack this late is no round trip worth fitting (as link.HB_FORGET_S)
+KERNEL_HB_FORGET_S = 2.0  # an ack this late is no round trip worth fitting (as sending.HB_FORGET_S)
 EVENT_QUEUE = 4096  # events waiting for the event loop: pulses ~50/s, refusals up to the state rate
 
 

@@ -203,3 +203,19 @@ class TtyWorkerBoost:
             self._write()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=2.0)  # at once: its next wait or pass sees _stop
+
+
+# what a link without its tty workers raised risks, for the status (siltiming.md)
+TTY_RISK = "under CPU load the MCU's bytes may wait behind other programs (faults mcu_stale, mcu_watchdog)"
+
+
+def describe(mode: str | None, boost: TtyWorkerBoost | None) -> str:
+    """The status line of a link's tty workers: `mode` None when nothing was requested (no
+    --realtime), `boost` None when the mode is off. Refused or off under --realtime, it names what
+    that risks (`tvsctl status` shows it)."""
+    if mode is None:
+        return "not requested"
+    if boost is None:
+        return f"off (mcu.tty_workers): {TTY_RISK}"
+    status = boost.status
+    return f"{status}: {TTY_RISK}" if status.startswith("refused") else status
