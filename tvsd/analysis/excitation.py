@@ -5,7 +5,12 @@ cause: its fit named `model_mismatch` ("wrong sign or unit of u"), a cause built
 check counts the regression rows whose speed stands clear of the noise and refuses the file
 (DataFileError, exit 2) when they are too few for the baseline's columns. The noise level comes
 from the data alone: the raw speed's second differences (a robust spread), carried through the
-band filter and decimation the rows go through.
+band filter and decimation the rows go through. How the noise enters the raw speed sets that
+path's gain: a speed measured with white noise (a tachometer, tvsd's own speed) passes the band's
+share of it; an encoder's count difference or a position-only file's derivative is a white angle
+error differenced, whose noise lies mostly above the band (f² at low frequency). Read as white,
+it put a 1024-count encoder's 5 rad/s at 0.7 of the threshold, and 39 of 400 moving encoder
+nulls (tests/quantisation_nulls.py) were refused.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from tvsd.analysis.prep import Prepared
+from tvsd.analysis.quantisation import count_step
 from tvsd.errors import DataFileError
 
 MAD_TO_SIGMA = 1.4826  # a normal sample's standard deviation over its median absolute deviation
@@ -27,24 +33,38 @@ def raw_speed(prep: Prepared) -> np.ndarray:
     return d.speed if d.speed is not None else np.gradient(d.position, 1.0 / d.sample_rate_hz)
 
 
+def noise_taps(prep: Prepared) -> np.ndarray:
+    """How a white noise source enters the raw speed: the speed's own ([1]), an angle error
+    differenced backward (an encoder's count difference, [1, −1]·fs) or centrally (np.gradient of
+    a position-only file, [½, 0, −½]·fs); fs is carried by the source's σ (speed units)."""
+    d = prep.data
+    if d.speed is None:
+        return np.array([0.5, 0.0, -0.5])
+    return np.array([1.0, -1.0]) if count_step(prep) is not None else np.array([1.0])
+
+
 def speed_noise(prep: Prepared) -> float:
-    """σ of the raw speed's white noise. Δ²x of a white sequence has variance 6σ²; the drive's
-    own speed, band-limited by its inertia, hardly adds to it, and the median keeps a step's
-    few large differences out."""
+    """σ of the white source of the raw speed's noise (noise_taps), in speed units. Its second
+    differences have variance σ²·‖Δ²∗taps‖² (6σ² for a white speed); the drive's own speed,
+    band-limited by its inertia, hardly adds to them, and the median keeps a step's few large
+    differences out."""
     d2 = np.diff(raw_speed(prep), 2)
     if len(d2) == 0:
         return 0.0
-    return MAD_TO_SIGMA * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
+    norm = float(np.linalg.norm(np.convolve([1.0, -2.0, 1.0], noise_taps(prep))))
+    return MAD_TO_SIGMA * float(np.median(np.abs(d2 - np.median(d2)))) / norm
 
 
 def noise_gain(prep: Prepared) -> float:
-    """The rows' speed noise per unit white noise of the raw speed: √Σh² of the path prep takes
-    (prep.lowpass, then prep.rows), summed over the decimation's phases so no tap is skipped."""
+    """The rows' speed noise per unit of the white source: √Σh² of the path its noise takes
+    (noise_taps, prep.lowpass, then prep.rows), summed over the decimation's phases so no tap is
+    skipped."""
+    taps = noise_taps(prep)
     n = 2 * prep.trim + 8192
     total = 0.0
     for phase in range(max(prep.band.decim, 1)):
         x = np.zeros(n)
-        x[n // 2 + phase] = 1.0
+        x[n // 2 + phase : n // 2 + phase + len(taps)] = taps
         total += float(np.sum(prep.rows(prep.lowpass(x)) ** 2))
     return float(np.sqrt(total))
 
@@ -64,7 +84,7 @@ def check_moving(prep: Prepared, columns: int) -> None:
     if moving < need:
         raise DataFileError(
             f"{d.path or d.name}: the shaft's speed stands clear of its noise ({CLEAR:g} × "
-            f"{sigma:.3g} {d.units.speed}, from the data) in only {moving} of {len(w)} samples "
+            f"{sigma:.3g} {d.units.speed}, from the data) in only {moving} of its {len(w)} regression rows "
             f"(at least {need} needed): no excitation, the drive did not break away; excite it "
             "harder or longer"
         )

@@ -97,7 +97,7 @@ def _gain(prep: Prepared, f: np.ndarray) -> np.ndarray:
     return np.asarray(g)
 
 
-def _step(prep: Prepared) -> float | None:
+def count_step(prep: Prepared) -> float | None:
     """The recorded speed's count step, None when it is not a rotary count difference."""
     d = prep.data
     if d.speed is None or d.units.axis != "rotary":
@@ -112,7 +112,7 @@ def floor(prep: Prepared, keep: np.ndarray) -> Floor | None:
     frequency; None when ω is not a count difference. `keep`: each row's weight in the residual
     the spectral tests see, as power (0 outside the rows kept, 1 inside; `gated`'s ramps squared)."""
     d = prep.data
-    step = _step(prep)
+    step = count_step(prep)
     if step is None or d.speed is None:
         return None
     fs = d.sample_rate_hz
@@ -173,7 +173,7 @@ def gated(
     (their weights squared). Without a floor (a tachometer, tvsd's own speed: no f⁴ term) the
     rows are passed as they were: main's path."""
     resid = np.where(keep, residual, 0.0)
-    if _step(prep) is None:
+    if count_step(prep) is None:
         return resid, None
     w = edge_taper(keep, rate_hz)
     return w * resid, floor(prep, w * w)
