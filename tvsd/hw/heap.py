@@ -30,8 +30,20 @@ import os
 
 ENV_MALLOC = "TVSD_MALLOC"
 M_TRIM_THRESHOLD, M_TOP_PAD, M_MMAP_THRESHOLD = -1, -2, -3  # malloc.h
-# glibc's DEFAULT_MMAP_THRESHOLD_MAX (the most mallopt accepts): 32 MiB on 64-bit, 16 MiB on 32-bit
-MMAP_THRESHOLD_MAX = 4 * 1024 * 1024 * ctypes.sizeof(ctypes.c_long)
+PARAM_NAMES = {
+    M_TRIM_THRESHOLD: "M_TRIM_THRESHOLD",
+    M_TOP_PAD: "M_TOP_PAD",
+    M_MMAP_THRESHOLD: "M_MMAP_THRESHOLD",
+}
+
+
+def mmap_threshold_max(long_bytes: int) -> int:
+    """glibc's DEFAULT_MMAP_THRESHOLD_MAX, the most mallopt(M_MMAP_THRESHOLD) accepts (half a
+    thread heap's size): 4 MiB·sizeof(long) on 64-bit (32 MiB), 512 KiB on 32-bit (armhf)."""
+    return 512 * 1024 if long_bytes <= 4 else 4 * 1024 * 1024 * long_bytes
+
+
+MMAP_THRESHOLD_MAX = mmap_threshold_max(ctypes.sizeof(ctypes.c_long))
 TRIM_BYTES = 2 * MMAP_THRESHOLD_MAX  # glibc's own dynamic rule: trim at twice the mmap threshold
 TOP_PAD_BYTES = 4 << 20  # the main arena grows by brk in steps of at least this
 _tuned = False  # tune() succeeded in this process (mallopt's settings are the process's)
@@ -68,14 +80,19 @@ def tune() -> str:
         (M_TRIM_THRESHOLD, TRIM_BYTES),
         (M_TOP_PAD, TOP_PAD_BYTES),
     )
-    refused = [str(p) for p, v in asked if libc.mallopt(p, v) != 1]
-    if refused:
-        return f"mallopt refused parameter(s) {', '.join(refused)}"
+    done: list[str] = []
+    for param, value in asked:  # in order, up to a refusal: never a half-set rule taken as set
+        if libc.mallopt(param, value) != 1:
+            before = ", ".join(done) or "nothing"
+            return f"mallopt refused {PARAM_NAMES[param]} = {value} ({before} set before it); no reserve"
+        done.append(PARAM_NAMES[param])
     global _tuned
     _tuned = True
-    return (
-        f"heaps kept up to {TRIM_BYTES >> 20} MiB free, blocks up to {MMAP_THRESHOLD_MAX >> 20} MiB from them"
-    )
+    return f"heaps kept up to {_size(TRIM_BYTES)} free, blocks up to {_size(MMAP_THRESHOLD_MAX)} from them"
+
+
+def _size(nbytes: int) -> str:
+    return f"{nbytes >> 20} MiB" if nbytes >= 1 << 20 else f"{nbytes >> 10} KiB"
 
 
 def reserve(nbytes: int) -> bool:
