@@ -86,7 +86,7 @@ def peak_in_plant(
     the loop's peak, goes. The peak must be there too, within its half-power band."""
     if not instrument.excited(data):
         return False  # nothing to instrument with: a peak is not told from the loop's
-    iv, _ = instrument.instrumented(prep, data.offset_term, rotary, expected=rules.expected_maps)
+    iv, _ = instrument.instrumented(prep, data.offset_term, rotary, expected=rules.expected_maps, rules=rules)
     resid = instrument.structural_residual(absorber.absorb(iv), measured)
     if resid is None:
         return False
