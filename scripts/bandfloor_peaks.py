@@ -32,7 +32,7 @@ from scipy.stats import beta, chi2
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 import quantisation_nulls as qn
 
-from tvsd.analysis import noise, quantisation
+from tvsd.analysis import noise, peak, quantisation
 from tvsd.analysis.noise import COLOUR_P
 from tvsd.analysis.prep import Band, Prepared
 
@@ -107,7 +107,7 @@ def _vibration_gain(prep: Prepared, f: np.ndarray) -> np.ndarray:
 
 
 def _spread_over_floor(r: noise.NoiseReport, floor: quantisation.Floor | None) -> float | None:
-    """The peak over the floor as bandfloor measured it (before noise._seen_height): the fitted
+    """The peak over the floor as bandfloor measured it (before peak.seen_height): the fitted
     top, or its power over the window's 1.5 bins when narrower, whatever the model shows on the
     bins."""
     if floor is None or not math.isfinite(r.peak_q) or r.peak_q <= 0:
@@ -189,9 +189,9 @@ def _peak_passes(r: dict[str, object], c: float, top_edge: bool = True) -> bool:
     `top_edge` False: the flank rule without the band's top edge."""
     over = r.get("peak_over_floor")
     return (
-        float(r["peak_q"]) >= noise.PEAK_Q  # type: ignore[arg-type]
+        float(r["peak_q"]) >= peak.PEAK_Q  # type: ignore[arg-type]
         and (bool(r["flanked"]) if top_edge else _low_flank_only(r))
-        and float(r["peak_white_lr"]) > noise.PEAK_WHITE_LR  # type: ignore[arg-type]
+        and float(r["peak_white_lr"]) > peak.PEAK_WHITE_LR  # type: ignore[arg-type]
         and float(r["peak_lr"]) > chi2.isf(COLOUR_P, 2)  # type: ignore[arg-type]
         and (over is None or float(over) >= c)  # type: ignore[arg-type]
     )
@@ -257,7 +257,7 @@ def main() -> int:
     ap.add_argument("--mix", action="store_true", help="excitation and gaps by the index (MIX_PROFILES)")
     ap.add_argument("--wide-hz", type=float, default=0.0, help="also the tests over 0.5–this (see _wide)")
     ap.add_argument("--summary", type=Path, nargs="+")
-    ap.add_argument("--c", type=float, nargs="*", default=[noise.__dict__.get("PEAK_FLOOR_C", 1.0)])
+    ap.add_argument("--c", type=float, nargs="*", default=[peak.__dict__.get("PEAK_FLOOR_C", 1.0)])
     a = ap.parse_args()
     if a.summary:
         summary(a.summary, a.c)

@@ -1,4 +1,4 @@
-"""Null distribution of the residual-spectrum peak statistic (tvsd.analysis.noise.PEAK_WHITE_LR).
+"""Null distribution of the residual-spectrum peak statistic (tvsd.analysis.peak.PEAK_WHITE_LR).
 
 Residuals shaped like the doctor's rows (a flat vibration plus differentiated measurement noise,
 their mix drawn log-uniform over 1.5 decades each way), of the doctor's row rate (250 Hz) and a

@@ -3,7 +3,7 @@
     .venv/bin/python scripts/peakevid_summary.py docs/measurements/peakevid/nulls-seed1202.jsonl
 
 For the rows given (nulls or modes, `--mix` runs): the resonance named at PEAK_FLOOR_C with the
-peak's height as noise._seen_height takes it (`peak_over_floor`) and as bandfloor took it
+peak's height as peak.seen_height takes it (`peak_over_floor`) and as bandfloor took it
 (`peak_over_floor_spread`; rows run on bandfloor's code have only the first, which is then
 bandfloor's), by excitation, gaps and rate, with 95 % Clopper–Pearson intervals; the heights
 over the floor of the peaks that pass every other gate (the c that would have named them); with
@@ -22,7 +22,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bandfloor_peaks import _peak_passes, cp95
 
-from tvsd.analysis.noise import PEAK_FLOOR_C
+from tvsd.analysis.peak import PEAK_FLOOR_C
 
 Row = dict[str, object]
 

@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import quantisation_nulls as qn
 
-from tvsd.analysis import noise
+from tvsd.analysis import noise, peak
 from tvsd.analysis import quantisation as Q
 from tvsd.analysis.summary import floor_note
 
@@ -47,7 +47,7 @@ def test_a_staircases_quantisation_line_is_not_a_mode() -> None:
     rate = null.fs / prep.band.decim
     resid, floor = Q.gated(prep, keep, every, rate)
     r = noise.analyse(resid, rate, 1.0, 100.0, floor)
-    assert 1.0 < r.peak_over_floor < noise.PEAK_FLOOR_C  # the line is there, above the floor
+    assert 1.0 < r.peak_over_floor < peak.PEAK_FLOOR_C  # the line is there, above the floor
     assert noise.spectral_cause(r, 1e-3) is None
 
 
@@ -104,7 +104,7 @@ def test_a_line_fitted_narrower_than_a_bin_is_judged_by_its_height_on_the_bins()
     resid, rate, floor = qn.residual(null, rng, gaps=False)
     r = noise.analyse(resid, rate, 1.0, 100.0, floor)
     assert abs(r.peak_hz - 41.6) < 0.25  # the line is the peak the test found
-    assert 1.0 < r.peak_over_floor < noise.PEAK_FLOOR_C, (r.peak_q, r.peak_over_floor)
+    assert 1.0 < r.peak_over_floor < peak.PEAK_FLOOR_C, (r.peak_q, r.peak_over_floor)
     assert noise.spectral_cause(r, 1e-3) is None
 
 
@@ -114,8 +114,8 @@ def test_the_seen_height_of_a_resolved_peak_is_its_top() -> None:
     over 1.5 bins; one between bins, only its tails."""
     fw = np.arange(0.5, 50.01, 0.25)
     enbw = 1.5 * 0.25
-    assert noise._seen_height(fw, 40.0, 20.0, 7.0, enbw) == 7.0
-    line = noise._seen_height(fw, 40.0, 1e6, 7.0, enbw)
+    assert peak.seen_height(fw, 40.0, 20.0, 7.0, enbw) == 7.0
+    line = peak.seen_height(fw, 40.0, 1e6, 7.0, enbw)
     assert math.isclose(line, 7.0 * math.pi * 40.0 / 2e6 / enbw)
-    tails = noise._seen_height(fw, 40.125, 1e8, 7.0, enbw)
+    tails = peak.seen_height(fw, 40.125, 1e8, 7.0, enbw)
     assert tails < 1e-6 * line

@@ -1,6 +1,6 @@
-"""The instrumented confirmation of a closed-loop dead zone or clip (tvsd.analysis.instrument):
-the structural left side along the directions the instruments identify, and the maps' blocks as
-E[f(u) | instruments]."""
+"""The instrumented confirmation of a closed-loop dead zone or clip: the structural left side
+along the directions the instruments identify (tvsd.analysis.instrument), and the maps' blocks as
+E[f(u) | instruments] (tvsd.analysis.instrument_maps)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from tvsd.analysis import instrument
+from tvsd.analysis import instrument, instrument_maps
 
 
 def test_a_column_the_instruments_hold_at_zero_does_not_blow_up_the_structural_residual() -> None:
@@ -53,8 +53,8 @@ def test_the_maps_expectations_match_a_monte_carlo(mu: float) -> None:
     y = np.clip(mu + 2.0 * g.standard_normal(200_000), -12.0, 12.0)
     m = np.array([mu])
     for x in (0.5, 8.4, 11.0):
-        clip = float(instrument._expect_clip(m, 2.0, x, -12.0, 12.0)[0])
-        sat = float(instrument._expect_sat(m, 2.0, x, -12.0, 12.0)[0])
+        clip = float(instrument_maps._expect_clip(m, 2.0, x, -12.0, 12.0)[0])
+        sat = float(instrument_maps._expect_sat(m, 2.0, x, -12.0, 12.0)[0])
         assert abs(clip - float(np.mean(np.clip(y, -x, x)))) < 0.02
         assert abs(sat - float(np.mean(np.sign(y) * np.maximum(np.abs(y) - x, 0.0)))) < 0.02
 

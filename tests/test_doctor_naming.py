@@ -13,7 +13,8 @@ from scipy.signal import lfilter
 
 from tvsd.analysis import matrix
 from tvsd.analysis.design import SUPPORT, supported_threshold
-from tvsd.analysis.noise import PEAK_Q, analyse, spectral_cause
+from tvsd.analysis.noise import analyse, spectral_cause
+from tvsd.analysis.peak import PEAK_Q
 from tvsd.config import load_config
 
 

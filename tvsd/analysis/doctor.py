@@ -38,7 +38,8 @@ from tvsd.analysis import design as D
 from tvsd.analysis.closed_checks import LOOP_PEAK, closed_loop_note, instrumented_check, peak_in_plant
 from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.gls import gls
-from tvsd.analysis.noise import COLOUR_P, NoiseReport, analyse, on_declared_line, spectral_cause
+from tvsd.analysis.noise import COLOUR_P, NoiseReport, analyse, spectral_cause
+from tvsd.analysis.peak import on_declared_line
 from tvsd.analysis.physical import physical, reduced
 from tvsd.analysis.prep import Band, prepare
 from tvsd.analysis.rules import DEFAULT, Rules

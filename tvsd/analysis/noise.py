@@ -16,6 +16,8 @@ floor cannot bend (docs/measurements/quantfloor.md).
 The Whittle sum treats every bin of every segment as independent; with a Hann window and 50 %
 overlap they are not (neighbouring bins and overlapping segments share data), so the ratio is
 scaled by the effective number of segments (`effective_segments`), not the count.
+The one-peak fit over the whole band (a structural mode) is tvsd.analysis.peak's; `spectrum_report`
+runs both tests, `spectral_cause` judges the two.
 """
 
 from __future__ import annotations
@@ -29,24 +31,13 @@ from scipy.optimize import minimize
 from scipy.signal import get_window, welch
 from scipy.stats import chi2
 
+from tvsd.analysis.peak import PEAK_FLOOR_C, PEAK_Q, PEAK_WHITE_LR, fit_peak, seen_height
 from tvsd.analysis.quantisation import Floor
 
 COLOUR_P = 1e-3  # the noise colour's likelihood ratio (χ², 1 dof) must beat this p-value (the doctor's gate)
 SEGMENT_S = 4.0
 BAND_LOW_HZ = 0.5  # the spectral tests' lowest frequency
 MIN_SEEN_BINS = 12  # 3 Hz of band above the quantisation's floor: fewer, and no shape is told
-PEAK_Q = 5.0  # a spectral peak this sharp is a structural mode; broader is a low-pass colour
-# The peak against the flat floor (3 more parameters, its frequency scanned): the Whittle ratio
-# on a 50 %-overlapped Welch spectrum is not χ²₃. Calibrated on 700 simulated null residuals
-# (flat + differentiated measurement noise in any mix, at the doctor's 250 Hz rows; 400 of 30 s,
-# 300 of 60 s; scripts/naming_peak_null.py): 99 % points 28.9 / 31.7, Gumbel 99.9 % points
-# 41.4 / 43.4, largest 44.8 / 36.1 — none above 45.
-PEAK_WHITE_LR = 45.0
-# With an encoder's quantisation floor the peak is sought over the whole band, the floor in its
-# model; the floor places the quantisation's lines only to within their width (1.2–2× in places on
-# a staircase), so a peak must also stand this many times above the floor at its centre.
-# Calibrated on randomised encoder nulls (docs/measurements/bandfloor.md).
-PEAK_FLOOR_C = 5.0
 
 
 @dataclass(frozen=True)
@@ -98,18 +89,6 @@ def _flanked(report: NoiseReport) -> bool:
     return max(low, BAND_LOW_HZ) + 2 * df <= report.peak_hz <= high - 2 * df
 
 
-def on_declared_line(report: NoiseReport, lines_hz: tuple[float, ...]) -> bool:
-    """Whether an excitation line the recording declares (`# excitation_hz:`) lies in the spectral
-    peak's half-power band, f/(2Q) each side (at least the spectrum's resolution): the rigid
-    model's misfit of the response to that line makes such a peak (a closed-loop null's 7.91 Hz,
-    Q 35, beside identify's 8 Hz line, seed 62), and a mode there cannot be told from it."""
-    if not lines_hz or not math.isfinite(report.peak_hz):
-        return False
-    df = float(report.freq[1] - report.freq[0]) if len(report.freq) > 1 else 0.0
-    half = max(report.peak_hz / (2.0 * report.peak_q), df) if report.peak_q > 0 else df
-    return any(abs(report.peak_hz - f) <= half for f in lines_hz)
-
-
 def ljung_box(x: np.ndarray, lags: int = 20) -> float:
     x = x - x.mean()
     n = len(x)
@@ -130,60 +109,6 @@ def _whittle(params: np.ndarray, f: np.ndarray, p: np.ndarray, coloured: bool, k
         tau = math.exp(params[2])
         s = a / (1 + (2 * math.pi * f * tau) ** 2) + b * f**2 + known
     return float(np.sum(np.log(s) + p / s))
-
-
-def _whittle_peak(params: np.ndarray, f: np.ndarray, p: np.ndarray, known: np.ndarray) -> float:
-    if np.any(np.abs(params) > 300):  # exp would overflow: outside any physical spectrum
-        return math.inf
-    a, b, A, f0, q = (math.exp(x) for x in params)
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        s = a + b * f**2 + known + A / (1 + q**2 * (f / f0 - f0 / f) ** 2)
-        value = float(np.sum(np.log(s) + p / s))
-    return value if math.isfinite(value) else math.inf
-
-
-def _peak(
-    fm: np.ndarray, pm: np.ndarray, a0: float, b0: float, known: np.ndarray
-) -> tuple[float, float, float, float, float]:
-    """Whittle fit of a flat + f² (+ the known quantisation) floor with one resonant (Lorentzian)
-    peak: (fun, f0, Q, power, height at f0)."""
-    floor = a0 + b0 * fm**2 + known
-    starts = [int(np.argmax(pm / floor))]
-    if np.any(known > 0):  # over the floor a single bin's scatter is large: also the 5-bin excess
-        starts.append(int(np.argmax(np.convolve(pm / floor, np.ones(5) / 5, mode="same"))))
-    best = None
-    for k in dict.fromkeys(starts):
-        for q0 in (3.0, 10.0, 30.0):
-            start = [
-                math.log(a0),
-                math.log(b0),
-                math.log(max(pm[k] - floor[k], 1e-3 * floor[k])),
-                math.log(fm[k]),
-                math.log(q0),
-            ]
-            r = minimize(
-                _whittle_peak, start, args=(fm, pm, known), method="Nelder-Mead", options={"maxiter": 3000}
-            )
-            if best is None or r.fun < best.fun:
-                best = r
-    assert best is not None
-    _, _, A, f0, q = (math.exp(x) for x in best.x)
-    power = A * math.pi * f0 / (2 * q)  # ∫ of the Lorentzian over f (narrow-peak limit)
-    return float(best.fun), f0, q, power, A
-
-
-def _seen_height(fw: np.ndarray, f0: float, q: float, height: float, enbw: float) -> float:
-    """The fitted peak's height as the spectrum shows it: its Lorentzian's largest value on the
-    band's bins, and no more than its power spread over the Hann window's noise bandwidth `enbw`
-    (a line narrower than that is spread over it, however large the fitted top). The first
-    bound holds a fit far narrower than a bin, which models the excess of the bins beside f0
-    with its tails (A/Q² fixed, A/Q free): a staircase null's line 3.8× the floor on its bins
-    was fitted at Q 1.5e8, and its power over 1.5 bins read 2.5e6× the floor (seed 1201,
-    docs/measurements/peakevid.md)."""
-    if q <= 0:
-        return height
-    on_bins = float(np.max(height / (1.0 + (q * (fw / f0 - f0 / fw)) ** 2)))
-    return min(on_bins, height * min(1.0, math.pi * f0 / (2 * q) / enbw))
 
 
 def effective_segments(segments: int, nper: int) -> float:
@@ -328,8 +253,8 @@ def spectrum_report(
         b0w = _slope(fw, pw, kw)
         whole = (*_colour_fits(fw, pw, kw, a0, b0w), b0w)
     white_w, best_w, b0w = whole
-    fun_peak, f0, q, power, height = _peak(fw, pw, a0, b0w, kw)
-    seen = _seen_height(fw, f0, q, height, 1.5 * float(f[1] - f[0]))
+    fun_peak, f0, q, power, height = fit_peak(fw, pw, a0, b0w, kw)
+    seen = seen_height(fw, f0, q, height, 1.5 * float(f[1] - f[0]))
     over = math.inf if floor is None else seen / max(float(floor(np.array([f0]))[0]), 1e-300)
     return NoiseReport(
         lb_p,

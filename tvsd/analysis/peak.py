@@ -1,0 +1,98 @@
+"""The residual spectrum's peak: one resonant (Lorentzian) peak against the flat floor.
+
+The Whittle fit of a flat + f² (+ the encoder quantisation's known floor) spectrum with one
+Lorentzian peak, its frequency scanned from the largest excesses over the floor (`fit_peak`); the
+peak's height as the spectrum shows it (`seen_height`); whether it sits on a line the recording
+declares (`on_declared_line`). The statistics are tvsd.analysis.noise.NoiseReport's peak_*
+fields (noise.spectrum_report), the gate that names a resonance is noise.spectral_cause, with
+the thresholds below. Split from noise.py (branch splits3), unchanged."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.optimize import minimize
+
+if TYPE_CHECKING:  # noise.py imports this module: NoiseReport is only an annotation here
+    from tvsd.analysis.noise import NoiseReport
+
+PEAK_Q = 5.0  # a spectral peak this sharp is a structural mode; broader is a low-pass colour
+# The peak against the flat floor (3 more parameters, its frequency scanned): the Whittle ratio
+# on a 50 %-overlapped Welch spectrum is not χ²₃. Calibrated on 700 simulated null residuals
+# (flat + differentiated measurement noise in any mix, at the doctor's 250 Hz rows; 400 of 30 s,
+# 300 of 60 s; scripts/naming_peak_null.py): 99 % points 28.9 / 31.7, Gumbel 99.9 % points
+# 41.4 / 43.4, largest 44.8 / 36.1 — none above 45.
+PEAK_WHITE_LR = 45.0
+# With an encoder's quantisation floor the peak is sought over the whole band, the floor in its
+# model; the floor places the quantisation's lines only to within their width (1.2–2× in places on
+# a staircase), so a peak must also stand this many times above the floor at its centre.
+# Calibrated on randomised encoder nulls (docs/measurements/bandfloor.md).
+PEAK_FLOOR_C = 5.0
+
+
+def on_declared_line(report: NoiseReport, lines_hz: tuple[float, ...]) -> bool:
+    """Whether an excitation line the recording declares (`# excitation_hz:`) lies in the spectral
+    peak's half-power band, f/(2Q) each side (at least the spectrum's resolution): the rigid
+    model's misfit of the response to that line makes such a peak (a closed-loop null's 7.91 Hz,
+    Q 35, beside identify's 8 Hz line, seed 62), and a mode there cannot be told from it."""
+    if not lines_hz or not math.isfinite(report.peak_hz):
+        return False
+    df = float(report.freq[1] - report.freq[0]) if len(report.freq) > 1 else 0.0
+    half = max(report.peak_hz / (2.0 * report.peak_q), df) if report.peak_q > 0 else df
+    return any(abs(report.peak_hz - f) <= half for f in lines_hz)
+
+
+def _whittle_peak(params: np.ndarray, f: np.ndarray, p: np.ndarray, known: np.ndarray) -> float:
+    if np.any(np.abs(params) > 300):  # exp would overflow: outside any physical spectrum
+        return math.inf
+    a, b, A, f0, q = (math.exp(x) for x in params)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        s = a + b * f**2 + known + A / (1 + q**2 * (f / f0 - f0 / f) ** 2)
+        value = float(np.sum(np.log(s) + p / s))
+    return value if math.isfinite(value) else math.inf
+
+
+def fit_peak(
+    fm: np.ndarray, pm: np.ndarray, a0: float, b0: float, known: np.ndarray
+) -> tuple[float, float, float, float, float]:
+    """Whittle fit of a flat + f² (+ the known quantisation) floor with one resonant (Lorentzian)
+    peak: (fun, f0, Q, power, height at f0)."""
+    floor = a0 + b0 * fm**2 + known
+    starts = [int(np.argmax(pm / floor))]
+    if np.any(known > 0):  # over the floor a single bin's scatter is large: also the 5-bin excess
+        starts.append(int(np.argmax(np.convolve(pm / floor, np.ones(5) / 5, mode="same"))))
+    best = None
+    for k in dict.fromkeys(starts):
+        for q0 in (3.0, 10.0, 30.0):
+            start = [
+                math.log(a0),
+                math.log(b0),
+                math.log(max(pm[k] - floor[k], 1e-3 * floor[k])),
+                math.log(fm[k]),
+                math.log(q0),
+            ]
+            r = minimize(
+                _whittle_peak, start, args=(fm, pm, known), method="Nelder-Mead", options={"maxiter": 3000}
+            )
+            if best is None or r.fun < best.fun:
+                best = r
+    assert best is not None
+    _, _, A, f0, q = (math.exp(x) for x in best.x)
+    power = A * math.pi * f0 / (2 * q)  # ∫ of the Lorentzian over f (narrow-peak limit)
+    return float(best.fun), f0, q, power, A
+
+
+def seen_height(fw: np.ndarray, f0: float, q: float, height: float, enbw: float) -> float:
+    """The fitted peak's height as the spectrum shows it: its Lorentzian's largest value on the
+    band's bins, and no more than its power spread over the Hann window's noise bandwidth `enbw`
+    (a line narrower than that is spread over it, however large the fitted top). The first
+    bound holds a fit far narrower than a bin, which models the excess of the bins beside f0
+    with its tails (A/Q² fixed, A/Q free): a staircase null's line 3.8× the floor on its bins
+    was fitted at Q 1.5e8, and its power over 1.5 bins read 2.5e6× the floor (seed 1201,
+    docs/measurements/peakevid.md)."""
+    if q <= 0:
+        return height
+    on_bins = float(np.max(height / (1.0 + (q * (fw / f0 - f0 / fw)) ** 2)))
+    return min(on_bins, height * min(1.0, math.pi * f0 / (2 * q) / enbw))
