@@ -10,7 +10,11 @@ path's gain: a speed measured with white noise (a tachometer, tvsd's own speed) 
 share of it; an encoder's count difference or a position-only file's derivative is a white angle
 error differenced, whose noise lies mostly above the band (f² at low frequency). Read as white,
 it put a 1024-count encoder's 5 rad/s at 0.7 of the threshold, and 39 of 400 moving encoder
-nulls (tests/quantisation_nulls.py) were refused.
+nulls (tests/quantisation_nulls.py) were refused. A count difference's noise has a floor: the
+angle is known to within a count, so its error is at least a uniform one's (quantisation_floor);
+without it a stuck encoder that flickers a count now and then had a MAD of 0 and passed. The
+floor also refuses a shaft turning steadily at ≤ 0.2 counts per sample (its rows stay under
+5 σ of it), so the refusal names both: noise or quantisation, stuck or too slow.
 """
 
 from __future__ import annotations
@@ -52,7 +56,18 @@ def speed_noise(prep: Prepared) -> float:
     if len(d2) == 0:
         return 0.0
     norm = float(np.linalg.norm(np.convolve([1.0, -2.0, 1.0], noise_taps(prep))))
-    return MAD_TO_SIGMA * float(np.median(np.abs(d2 - np.median(d2)))) / norm
+    mad = MAD_TO_SIGMA * float(np.median(np.abs(d2 - np.median(d2)))) / norm
+    return max(mad, quantisation_floor(prep))
+
+
+def quantisation_floor(prep: Prepared) -> float:
+    """The least σ of a count difference's source (noise_taps [1, −1]), in speed units; 0 for any
+    other speed. The angle is known only to within a count, so its error cannot be less than a
+    uniform one over a count: σ = q/√12 in angle, step/√12 (step = q·fs) in the source's speed
+    units. Without it a stuck encoder that flickers a count now and then has a MAD of exactly 0
+    (most of its second differences are 0): σ̂ = 0 and every row with any speed would be moving."""
+    step = count_step(prep)
+    return 0.0 if step is None else step / np.sqrt(12.0)
 
 
 def noise_gain(prep: Prepared) -> float:
@@ -82,9 +97,12 @@ def check_moving(prep: Prepared, columns: int) -> None:
     moving = int(np.count_nonzero(w > CLEAR * sigma))
     need = ROWS_PER_COLUMN * columns
     if moving < need:
+        # The count floor sets σ for a stuck encoder and for one turning under ~0.2 counts per
+        # sample alike: the message must hold for both.
+        source = "its noise or its encoder's quantisation" if count_step(prep) is not None else "its noise"
         raise DataFileError(
-            f"{d.path or d.name}: the shaft's speed stands clear of its noise ({CLEAR:g} × "
-            f"{sigma:.3g} {d.units.speed}, from the data) in only {moving} of its {len(w)} regression rows "
-            f"(at least {need} needed): no excitation, the drive did not break away; excite it "
-            "harder or longer"
+            f"{d.path or d.name}: no excitation: the shaft's speed stands clear of {source} "
+            f"({CLEAR:g} × {sigma:.3g} {d.units.speed}, from the data) in only {moving} of its {len(w)} "
+            f"regression rows (at least {need} needed): the drive did not break away or turns too "
+            "slowly to be seen; excite it harder or longer"
         )
