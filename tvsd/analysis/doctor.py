@@ -120,6 +120,8 @@ def _diagnose(
     prep = prepare(data, band)
     design = absorber.absorb(D.build(prep, data.offset_term, rotary, rules=rules))
     excitation.check_moving(prep, design.X.shape[1])  # a stuck drive: no excitation, exit 2
+    if heldout is not None:  # judged on: a stuck held-out file would judge the model on noise
+        excitation.check_moving(prepare(heldout, band), design.X.shape[1])
     measured = design
     if iv and instrument.excited(data):  # closed loop, excited: 2SLS (opt-in,
         # docs/measurements/doctor-closed.md)
