@@ -143,3 +143,40 @@ def test_moving_encoder_nulls_are_not_refused():
         except DataFileError:
             refused += 1
     assert refused == 0
+
+
+@pytest.mark.parametrize("dither_counts", [0.2, 0.25])
+def test_a_stuck_encoder_that_flickers_a_count_now_and_then_is_refused(tmp_path, dither_counts):
+    """A stuck shaft half a count from a boundary, its angle jittered by 0.2 or 0.25 counts: it
+    crosses the count in 1.2 % or 4.6 % of the samples, so 5–17 % of the second differences are
+    non-zero, their MAD is exactly 0 and (before) σ̂ = 0 made all 4988 rows moving: analysed. The
+    count step's own floor (step/√12) now sets σ, and no row stands clear of it."""
+    prep = _encoder_file(tmp_path / "flicker.csv", np.zeros(20 * FS), 1024, 2, dither_counts=dither_counts)
+    assert X.speed_noise(prep) == X.quantisation_floor(prep) > 0  # the MAD alone is 0 here
+    with pytest.raises(DataFileError, match="no excitation"):
+        X.check_moving(prep, 8)
+
+
+def test_a_slowly_turning_encoder_refused_by_the_floor_is_told_so(tmp_path):
+    """0.1 counts per sample for the whole file (a 1024-count encoder at 0.61 rad/s): the floor
+    puts its rows (median |ω| 0.44 rad/s) under 5 σ (1.16 rad/s), so it is refused like a stuck
+    one (before: MAD 0, analysed). Its shaft did break away: the line must say it may turn too
+    slowly for its encoder's quantisation, not only that the drive did not break away."""
+    q = 2 * np.pi / 1024
+    prep = _encoder_file(tmp_path / "slow.csv", np.full(20 * FS, 0.1 * q * FS), 1024, seed=2)
+    with pytest.raises(DataFileError, match="encoder's quantisation") as e:
+        X.check_moving(prep, 8)
+    assert "turns too slowly" in str(e.value)
+
+
+def test_a_stuck_heldout_file_is_refused_naming_it(tmp_path, capsys):
+    """--heldout went through sense.check_recording only: a stuck held-out file was analysed and
+    the model judged on its noise. Now it is refused like the fitted file (exit 2, one line
+    naming it) before the fit."""
+    fit = tmp_path / "moving.csv"
+    _write(fit, *_sticking_drive(20.0, 0.04, seed=0))
+    stuck = tmp_path / "stuck_heldout.csv"
+    _write(stuck, *_sticking_drive(20.0, 0.0, seed=1))
+    assert main(["analyze", str(fit), "--heldout", str(stuck), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "no excitation" in err and "stuck_heldout.csv" in err and err.count("\n") == 1, err
