@@ -306,7 +306,10 @@ def test_the_daemon_lists_the_holds_unlatched_and_latches_the_gap(setup: object)
         assert d.state == DaemonState.FAULT
         assert d.faults.counts() == {"mcu_late_input": 1, "mcu_stale": 1}
         stale = d.faults.entries()[-1]
-        assert "gap" in stale.cause and stale.safe_after_ms is not None and stale.safe_after_ms > 40.0
+        # The hold began at the link timeout (40 ms) or later, never before; the figure is rounded to
+        # 0.01 ms, so a hold that began within 5 µs after the timeout reads 40.0 (CI of 5894024 under
+        # load: 40.0, failing a strict ">")
+        assert "gap" in stale.cause and stale.safe_after_ms is not None and stale.safe_after_ms >= 40.0
     finally:
         r.stop(timeout=2.0)
 
