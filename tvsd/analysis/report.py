@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from tvsd.analysis.doctor import Diagnosis
+from tvsd.analysis.window import describe
 from tvsd.errors import UsageError
 
 
@@ -254,7 +255,7 @@ def _window_lines(w: dict[str, Any] | None) -> list[str]:
     """The window analysed (tvsctl analyze --start/--end), when one was asked."""
     if w is None:
         return []
-    asked = " ".join(f"--{k} {w[f'{k}_s']:g}" for k in ("start", "end") if w[f"{k}_s"] is not None)
+    asked = describe(w["start_s"], w["end_s"])
     return [
         f"Window analysed ({asked}): t = {w['t_first_s']:g} to {w['t_last_s']:g} s of the file, "
         f"{w['rows']} of its {w['rows_in_file']} rows; the rest was left out.",
