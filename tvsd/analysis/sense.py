@@ -71,8 +71,9 @@ def baseline_problem(p: dict[str, float], se: dict[str, float]) -> str | None:
     if not p["J"] > 0:
         return f"the fitted inertia is not positive (J = {p['J']:.3g})"
     # A negative viscous or Coulomb term alone is not unphysical: with the Stribeck column they
-    # split one descending friction curve (a stick-slip drive's), and that split is not what the
-    # standard errors describe (docs/measurements/stickslip.md). Friction that pushes the shaft is.
+    # share one friction curve (nearly collinear below v₀ on a stick-slip drive), and a misfit
+    # moves that split by more than its standard errors say (docs/measurements/stickslip.md).
+    # Friction that pushes the shaft is unphysical.
     active = friction_pushes(p, se)
     if not p["damping"] > -3 * se.get("damping", 0.0) and active:
         return (
