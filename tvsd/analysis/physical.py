@@ -8,7 +8,10 @@ import math
 import numpy as np
 
 from tvsd.analysis import design as D
+from tvsd.analysis import sense
 from tvsd.analysis.simulate import ReducedModel
+
+FRICTION_SPEEDS = 41  # quantiles of the rows' |ω| where the friction map is judged
 
 
 def physical(
@@ -43,6 +46,12 @@ def physical(
         "J": abs(J) * se_a / abs(a) if a != 0 else math.inf,
         "input_gain": se_a,
     }
+    w = np.abs(design.prep.rows(design.prep.speed))[design.rows_mask]
+    if len(w) and math.isfinite(J):  # the friction map over the speeds the fit saw (sense.py)
+        speeds = np.quantile(w, np.linspace(0.0, 1.0, FRICTION_SPEEDS))
+        f_min, f_err, f_speed = sense.friction_map(design.names, theta, cov, J, design.v0, speeds)
+        p.update(friction_min=f_min, friction_speed=f_speed)
+        err["friction_min"] = f_err
     return p, err
 
 
