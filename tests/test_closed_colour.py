@@ -4,7 +4,7 @@ With an excited reference (identify's steps, multisine, PRBS) the least-squares 
 is judged when `rules.closed_colour` is on (matrix_closed's `lscc`): on the offline closed-loop
 matrix its nulls stay under the test's χ² level and a 15 ms colour is named. It is off by default
 (the doctor's rule): SIL daemon identify exports, whose plant is white, show a low-pass residual
-of τ 6–10 ms above the gate on 4 of 14 files."""
+of τ 7–10 ms above the gate on 4 of 18 files."""
 
 from __future__ import annotations
 
@@ -47,7 +47,7 @@ def test_a_closed_loop_colour_is_named_with_the_rule_and_refused_without(
     squares on the measured command takes the noise's share the law answers (below the loop's
     band) out of the residual, which flattens the low end of the spectrum, so the fitted corner
     moves; a factor 2 keeps the corner (11 Hz) inside 5.3–21 Hz, well inside the 0.5–50 Hz band
-    the test sees, and tells it from the daemon exports' 6–10 ms (module doc)."""
+    the test sees, and tells it from the daemon exports' 7–10 ms above the gate (module doc)."""
     data, cfg = coloured
     on = diagnose(data, cfg.plant.v0, rules=dataclasses.replace(DEFAULT, closed_colour=True))
     assert on.cause == "colored_noise", [(s.cause, s.z, s.why_not) for s in on.ranked]

@@ -198,7 +198,7 @@ def _diagnose(
     # residual the share of the noise the law answers, inside the loop's band, which flattens the
     # spectrum's low end rather than raising it, and the offline matrix's closed-loop nulls stayed
     # under the test's χ² level (docs/measurements/closedcolour.md); but SIL daemon identify
-    # exports of a white plant show a τ 6–10 ms colour above the gate on 4 of 14. Never when the
+    # exports of a white plant show a τ 7–10 ms colour above the gate on 4 of 18. Never when the
     # residual's peak is the loop's (loop_peak): then its shape is the loop's, not the vibration's.
     closed_ok = not closed_ls or (rules.closed_colour and not loop_peak)
     colour_sig = noise.colour_p < COLOUR_P and note is None and closed_ok
