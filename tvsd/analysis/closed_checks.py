@@ -68,36 +68,44 @@ LOOP_PEAK = (
 )
 
 
-def peak_in_plant(
+def plant_noise(
     prep: Any,
     data: Dataset,
     rotary: bool,
     measured: D.Design,
     keep: np.ndarray,
-    noise: NoiseReport,
     rules: Rules = DEFAULT,
-) -> bool:
+    identified_only: bool = False,
+) -> NoiseReport | None:
+    """The spectral tests on the instrumented fit's residual y − X·θ_IV (the measured columns,
+    θ_IV from the reference and identify's PRBS): the equation's own error — the vibration and
+    the speed-measurement noise — which the law's answer to the noise does not shape, unlike the
+    least-squares residual on the measured command. None without an excitation to instrument
+    with (a constant reference)."""
+    if not instrument.excited(data):
+        return None
+    iv, _ = instrument.instrumented(prep, data.offset_term, rotary, expected=rules.expected_maps, rules=rules)
+    resid = instrument.structural_residual(absorber.absorb(iv), measured, identified_only)
+    if resid is None:
+        return None
+    rate = 1.0 / float(np.median(np.diff(prep.t_rows)))
+    gated, floor = quantisation.gated(prep, keep, resid, rate)
+    return analyse(gated, rate, 1.0, prep.band.cutoff_hz, floor)
+
+
+def peak_in_plant(noise: NoiseReport, plant: NoiseReport | None) -> bool:
     """Whether a residual peak of a closed-loop least-squares fit is the plant's: the law feeds
     the measured noise back into the command, so least squares on that command is biased and its
     residual keeps a share of the loop's answer to the noise — S = 1/(1 + PC) shaped, peaked at
     the loop's own mode when it is underdamped (an outsider PI loop's 10.6 Hz on a null,
-    docs/measurements/loopmode.md). The instrumented fit's residual (y − X·θ_IV) is the
+    docs/measurements/loopmode.md). The instrumented fit's residual (`plant`: plant_noise) is the
     equation's own error: a mode of the plant is a torque in it and stays; the bias, and with it
     the loop's peak, goes. The peak must be there too, within its half-power band."""
-    if not instrument.excited(data):
+    if plant is None or spectral_cause(plant, COLOUR_P) != "resonance":
         return False  # nothing to instrument with: a peak is not told from the loop's
-    iv, _ = instrument.instrumented(prep, data.offset_term, rotary, expected=rules.expected_maps, rules=rules)
-    resid = instrument.structural_residual(absorber.absorb(iv), measured)
-    if resid is None:
-        return False
-    rate = 1.0 / float(np.median(np.diff(prep.t_rows)))
-    gated, floor = quantisation.gated(prep, keep, resid, rate)
-    again = analyse(gated, rate, 1.0, prep.band.cutoff_hz, floor)
-    if spectral_cause(again, COLOUR_P) != "resonance":
-        return False
     df = float(noise.freq[1] - noise.freq[0]) if len(noise.freq) > 1 else 0.0
     half = max(noise.peak_hz / (2.0 * noise.peak_q), df) if noise.peak_q > 0 else df
-    return abs(again.peak_hz - noise.peak_hz) <= half
+    return abs(plant.peak_hz - noise.peak_hz) <= half
 
 
 def closed_loop_note(data: Dataset) -> str | None:

@@ -10,7 +10,9 @@ instrumented confirmation with rules.identified_only and expected_maps: branch c
 (the clip confirmed on main's instrumented design, as before branch closedsat), `lsd` (the drift
 confirmed along the identified directions too), `lss` (the clip's confirmation on rows from the
 spin-up's end: instrument.steady_start's spin_only); both measured and left off
-(docs/measurements/closedsat.md). Each is a frozen `Variant` (VARIANTS) whose rules
+(docs/measurements/closedsat.md). `lscc`: the noise colour a closed-loop candidate by least squares with an
+excited reference (measured, left off: SIL daemon exports show a colour their plant does not
+have; docs/measurements/closedcolour.md). Each is a frozen `Variant` (VARIANTS) whose rules
 (tvsd.analysis.rules) diagnose() gets explicitly. (`lscf`, the drift confirmed with a control
 function, was measured and removed: docs/measurements/closedfix.md.)
 """
@@ -47,6 +49,7 @@ VARIANTS: dict[str, Variant] = {
     "ls0": Variant(Rules(skip_undetermined_folds=False, lines_of_reference=False)),
     "ls1": Variant(Rules(lines_of_reference=False)),
     "ls2": Variant(Rules(identified_only=True, expected_maps=True)),
+    "lscc": Variant(Rules(closed_colour=True)),
     "iv": Variant(iv=True),
     "iv_ref": Variant(iv=True, reference_only=True),
 }

@@ -35,7 +35,13 @@ from scipy.stats import chi2
 from tvsd.analysis import absorber, excitation, heldout_sim, instrument, quantisation, selection, sense
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
-from tvsd.analysis.closed_checks import LOOP_PEAK, closed_loop_note, instrumented_check, peak_in_plant
+from tvsd.analysis.closed_checks import (
+    LOOP_PEAK,
+    closed_loop_note,
+    instrumented_check,
+    peak_in_plant,
+    plant_noise,
+)
 from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.gls import gls
 from tvsd.analysis.noise import COLOUR_P, NoiseReport, analyse, spectral_cause
@@ -176,15 +182,6 @@ def _diagnose(
     resid, floor = quantisation.gated(prep, out.keep, resid, rate_rows)
     noise = analyse(resid, rate_rows, params["J"] if params["J"] > 0 else 1.0, prep.band.cutoff_hz, floor)
     ranked = verdict.ranked
-    # Closed loop: the feedback shapes the equation's residual (the command answers its noise,
-    # and least squares on that command leaves part of the noise's answer in the residual), so
-    # its colour says nothing of the vibration's — with a constant reference and with an excited
-    # one alike (a white-vibration identify null was `colored_noise`, τ 5 ms); not a candidate
-    # unless the reference instruments the fit (iv).
-    colour_sig = noise.colour_p < COLOUR_P and note is None and not closed_ls
-    ranked.append(
-        Scored("colored_noise", {"tau_s": noise.tau_s}, noise.colour_lr, noise.colour_p, colour_sig)
-    )
     cause, effect = verdict.cause, verdict.effect
     J = params["J"]
     # The peak is tested before the low-pass colour (noise.spectral_cause), not only once it fired.
@@ -192,7 +189,23 @@ def _diagnose(
     peak = peak and not on_declared_line(noise, data.excitation_hz)  # the excitation's own line
     peak_amp = abs(J) * math.sqrt(2.0) * noise.peak_rms
     refuse = cause == "none" and peak and closed_ls
-    if refuse and not peak_in_plant(prep, data, rotary, measured, out.keep, noise, rules):
+    loop_peak = refuse and not peak_in_plant(
+        noise, plant_noise(prep, data, rotary, measured, out.keep, rules)
+    )
+    # Closed loop: with a constant reference not a candidate (nothing instruments the fit, and no
+    # null was measured). With an excited reference by least squares, only under
+    # rules.closed_colour (off by default): the fit on the measured command takes out of the
+    # residual the share of the noise the law answers, inside the loop's band, which flattens the
+    # spectrum's low end rather than raising it, and the offline matrix's closed-loop nulls stayed
+    # under the test's χ² level (docs/measurements/closedcolour.md); but SIL daemon identify
+    # exports of a white plant show a τ 7–10 ms colour above the gate on 4 of 18. Never when the
+    # residual's peak is the loop's (loop_peak): then its shape is the loop's, not the vibration's.
+    closed_ok = not closed_ls or (rules.closed_colour and not loop_peak)
+    colour_sig = noise.colour_p < COLOUR_P and note is None and closed_ok
+    ranked.append(
+        Scored("colored_noise", {"tau_s": noise.tau_s}, noise.colour_lr, noise.colour_p, colour_sig)
+    )
+    if loop_peak:
         # Closed loop by least squares: a peak the instrumented fit does not leave is not the plant's.
         loop = {"frequency_hz": noise.peak_hz, "amplitude": peak_amp, "q": noise.peak_q}
         p_peak = float(chi2.sf(noise.peak_lr, 2))
@@ -212,7 +225,8 @@ def _diagnose(
             "amplitude": math.hypot(float(effect["amplitude"]), peak_amp),
             "q": noise.peak_q,
         }
-    why = _colour_why(noise, cause, closed=note is not None or closed_ls, peak=peak)
+    closed = note is not None or (closed_ls and not rules.closed_colour)
+    why = _colour_why(noise, cause, closed=closed, peak=peak, loop_peak=loop_peak)
     ranked = [
         replace(s, why_not=why) if s.cause == "colored_noise" and not s.significant else s for s in ranked
     ]
@@ -246,10 +260,13 @@ def _diagnose(
     )
 
 
-def _colour_why(noise: NoiseReport, cause: str, closed: bool, peak: bool) -> tuple[str, str] | None:
+def _colour_why(
+    noise: NoiseReport, cause: str, closed: bool, peak: bool, loop_peak: bool = False
+) -> tuple[str, str] | None:
     """Why coloured noise is not named: it is judged by its own spectral test (Whittle's
     likelihood ratio, low-pass against flat, χ²₁ at p < COLOUR_P), not by the z gate, and only
-    when no deterministic cause is named and the loop is open."""
+    when no deterministic cause is named, and in closed loop only with an excited reference and
+    no loop peak in the residual."""
     if cause == "colored_noise":
         return None
     test = (
@@ -264,6 +281,12 @@ def _colour_why(noise: NoiseReport, cause: str, closed: bool, peak: bool) -> tup
         )
     if noise.colour_p >= COLOUR_P:
         return ("spectral_test", f"{test}, and it needs p < {COLOUR_P:g}")
+    if loop_peak:
+        return (
+            "loop_shaped",
+            "closed loop: the residual's spectrum holds the loop's own peak (not in the instrumented "
+            "fit's residual), so its shape is the loop's, not the vibration's",
+        )
     if peak:
         return ("spectral_peak", "the residual's colour is a narrow peak: a structural mode (resonance)")
     return (

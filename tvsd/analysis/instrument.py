@@ -251,10 +251,16 @@ def structural_left_side(iv: D.Design, measured: D.Design, identified_only: bool
     say, the fit must still remove); the identified ones get the 2SLS coefficients."""
     if measured.X.shape != iv.X.shape:
         return iv.y
+    return iv.y - (measured.X - iv.X) @ iv_theta(iv, measured, identified_only)
+
+
+def iv_theta(iv: D.Design, measured: D.Design, identified_only: bool = False) -> np.ndarray:
+    """θ_IV of structural_left_side (the designs' columns must match): least squares on X̂ on
+    the instrumented rows, or along the identified directions only (`identified_only`)."""
     m = iv.rows_mask
     if not identified_only:  # main's rule: lstsq on X̂
         theta, *_ = np.linalg.lstsq(iv.X[m], iv.y[m], rcond=None)
-        return iv.y - (measured.X - iv.X) @ theta
+        return np.asarray(theta)
     A, B, y = iv.X[m], measured.X[m], iv.y[m]
     scale = np.linalg.norm(A, axis=0)
     scale[~(scale > 0)] = 1.0
@@ -267,10 +273,10 @@ def structural_left_side(iv: D.Design, measured: D.Design, identified_only: bool
         V2 = Vt[~strong].T
         c2, *_ = np.linalg.lstsq(Bs @ V2, y - Bs @ c, rcond=None)
         c = c + V2 @ c2
-    return iv.y - (measured.X - iv.X) @ (c / scale)
+    return np.asarray(c / scale)
 
 
-def structural_residual(iv: D.Design, measured: D.Design) -> np.ndarray | None:
+def structural_residual(iv: D.Design, measured: D.Design, identified_only: bool = False) -> np.ndarray | None:
     """y − X·θ_IV on the measured design's rows: θ_IV by the second stage (least squares on
     the instrumented columns X̂, on the rows after the spin-up), the residual on the measured
     columns — the equation's own error, in which a mode of the plant stays and the law's answer
@@ -278,9 +284,7 @@ def structural_residual(iv: D.Design, measured: D.Design) -> np.ndarray | None:
     loop peak), does not. None when the two designs' columns differ."""
     if measured.X.shape != iv.X.shape:
         return None
-    m = iv.rows_mask
-    theta, *_ = np.linalg.lstsq(iv.X[m], iv.y[m], rcond=None)
-    return np.asarray(measured.y - measured.X @ theta)
+    return np.asarray(measured.y - measured.X @ iv_theta(iv, measured, identified_only))
 
 
 def residual(measured: D.Design, used: D.Design, verdict: Any) -> np.ndarray:

@@ -41,6 +41,11 @@ class Rules:
     identified_for: tuple[str, ...] = ("saturation",)
     expected_for: tuple[str, ...] = ("saturation",)
     spin_only_for: tuple[str, ...] = ()
+    # doctor.py: the noise colour a candidate in closed loop by least squares with an excited
+    # reference (matrix_closed's `lscc`). Off: the offline matrix's nulls hold its level, but SIL
+    # daemon identify exports of a white plant show a τ 7–10 ms colour above the gate on 4 of 18
+    # (docs/measurements/closedcolour.md)
+    closed_colour: bool = False
 
 
 DEFAULT = Rules()
