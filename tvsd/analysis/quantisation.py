@@ -33,7 +33,7 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-from scipy.signal import butter, fftconvolve, filtfilt, freqz
+from scipy.signal import butter, filtfilt, freqz
 
 from tvsd.analysis.count_grid import STEP_KEY, recorded_step
 from tvsd.analysis.prep import Prepared, _antialias
@@ -49,41 +49,26 @@ SPEED_HZ = 5.0  # the speed that places the lines: ω low-passed here (its own q
 OVERSAMPLE = 16  # the lines' histogram is this much finer than the Welch resolution
 
 
-def error_psd(
-    speed: np.ndarray, weight: np.ndarray, q: float, fs: float, segment_s: float, speed_hz: float = 0.0
-) -> Floor:
+def error_psd(speed: np.ndarray, weight: np.ndarray, q: float, fs: float, segment_s: float) -> Floor:
     """One-sided PSD of the angle's quantisation error e over the samples' weights (their mean
     over the record, as a Welch average sees it), at full-rate frequencies in [0, fs/2].
 
     At a count rate r = |ω|/q (counts/s) e is a sawtooth: harmonic n at n·r folded into [0, fs/2],
     of power q²/(2π²n²) (Σ = q²/12). The record's spectrum is the lines' histogram over its samples
     (slow changes of r: the instantaneous-frequency spectrum), seen through the Welch segment's
-    Hann window. A speed spread over many counts per sample fills it evenly: white, q²/(6·fs).
-
-    `speed_hz` > 0: `speed` is the recorded speed low-passed there (forward and back), and r
-    carries that low-pass's share of the count difference's own error — the lines of e that fall
-    below it, differenced: a line at 3 Hz moves r by counts/s, and harmonic n by n times that
-    (`placement_rms`). Harmonic n's line is then spread by a normal kernel of that rms × n: the
-    floor holds its power where the line may be, not only where the low-passed speed puts it."""
+    Hann window. A speed spread over many counts per sample fills it evenly: white, q²/(6·fs)."""
     df = 1.0 / segment_s / OVERSAMPLE
     nbins = int(fs / 2 / df) + 1
     rate = np.abs(speed) / q
+    hist = np.zeros(nbins)
     w = weight / max(len(weight), 1)
-    rest = q * q / (2 * math.pi**2) * (math.pi**2 / 6 - sum(1.0 / k**2 for k in range(1, HARMONICS + 1)))
-
-    def lines(n: int) -> np.ndarray:  # harmonic n's histogram (power per histogram bin)
+    for n in range(1, HARMONICS + 1):
         f = np.mod(n * rate, fs)
         f = np.where(f > fs / 2, fs - f, f)
         line = q * q / (2 * math.pi**2 * n * n)  # harmonic n of a sawtooth of height q
-        return np.bincount(np.minimum((f / df + 0.5).astype(int), nbins - 1), w, nbins) * line
-
-    white = float(np.sum(w)) * rest / (fs / 2)
-    sigma = 0.0
-    if speed_hz > 0:
-        placed = sum((lines(n) for n in range(1, HARMONICS + 1)), np.zeros(nbins)) / df + white
-        sigma = placement_rms(placed, q, fs, df, speed_hz)
-    hist = sum((_spread(lines(n), n * sigma / df) for n in range(1, HARMONICS + 1)), np.zeros(nbins))
-    density = hist / df + white
+        hist += np.bincount(np.minimum((f / df + 0.5).astype(int), nbins - 1), w, nbins) * line
+    rest = q * q / (2 * math.pi**2) * (math.pi**2 / 6 - sum(1.0 / k**2 for k in range(1, HARMONICS + 1)))
+    density = hist / df + float(np.sum(w)) * rest / (fs / 2)
     m = 256  # the Hann window's spectral kernel at the histogram's resolution
     kern = np.abs(np.fft.rfft(np.hanning(m), OVERSAMPLE * m)) ** 2
     half = 3 * OVERSAMPLE  # the mainlobe and first sidelobes (±3 Welch bins)
@@ -96,35 +81,6 @@ def error_psd(
         return np.asarray(np.interp(f, grid, smooth))
 
     return psd
-
-
-def placement_rms(density: np.ndarray, q: float, fs: float, df: float, speed_hz: float) -> float:
-    """The rms error (counts/s) of the speed low-passed at `speed_hz` (Butterworth 2, forward and
-    back: |H|⁴) as the count rate that places the lines: e's PSD `density` (rad²/Hz on bins df
-    apart from 0) differenced (fs·Δe: × (2·fs·sin(πf/fs))²), in counts (÷ q²), through |H|⁴. No
-    free parameter: the floor's own lines below the low-pass's corner are that error (a staircase
-    null's line sat 3–4 Hz from the floor's, seed 1201 #86: docs/measurements/peakfix.md)."""
-    f = np.arange(len(density)) * df
-    b, a = butter(2, speed_hz / (fs / 2))
-    _, h = freqz(b, a, worN=2 * np.pi * f / fs)
-    s_rate = density / (q * q) * (2 * fs * np.sin(np.pi * f / fs)) ** 2
-    return math.sqrt(float(np.sum(np.abs(h) ** 4 * s_rate)) * df)
-
-
-def _spread(hist: np.ndarray, sigma_bins: float) -> np.ndarray:
-    """The lines' histogram on [0, fs/2] convolved with a normal kernel of rms `sigma_bins`, the
-    tails folded back at 0 and fs/2 as the lines themselves fold (mirror at both ends); a kernel
-    wider than the band leaves the lines' power spread evenly over it."""
-    if sigma_bins < 0.25:  # within the histogram's own resolution
-        return hist
-    m = len(hist)
-    half = int(4 * sigma_bins) + 1
-    if half >= m - 1:
-        return np.full(m, hist.sum() / m)
-    x = np.arange(-half, half + 1)
-    kern = np.exp(-0.5 * (x / sigma_bins) ** 2)
-    out = fftconvolve(np.pad(hist, half, mode="reflect"), kern / kern.sum(), mode="valid")
-    return np.asarray(np.maximum(out, 0.0))
 
 
 def _gain(prep: Prepared, f: np.ndarray) -> np.ndarray:
@@ -168,7 +124,7 @@ def floor(prep: Prepared, keep: np.ndarray) -> Floor | None:
         idx = np.clip(rows_at + j - prep.band.decim // 2, 0, len(speed) - 1)
         weight[idx] = np.where(keep > 0, keep, weight[idx])
     weight *= len(speed) / max(prep.band.decim * len(keep), 1)  # the mean over the rows, not the record
-    s_e = error_psd(speed, weight, step / fs, fs, SEGMENT_S, SPEED_HZ)
+    s_e = error_psd(speed, weight, step / fs, fs, SEGMENT_S)
     rows_rate = fs / prep.band.decim
 
     def psd(f: np.ndarray) -> np.ndarray:
