@@ -84,7 +84,8 @@ def _flanked(report: NoiseReport) -> bool:
     outsider null's 'mode' at 0.555 Hz, Q 8e5, in a band that starts at 0.5 Hz), and its centre
     no higher than their top, where an encoder's quantisation floor rises steeply (a gapped
     encoder null's 'mode' at 54.7 Hz, outside its 50 Hz band). Two bins inside the top as well
-    held no null in 1213 and lost 3 of 56 modes at 49.6–50 Hz (docs/measurements/peakfix.md)."""
+    held no null in 1213 and lost the 3 of 52 modes at 30–50 Hz that lay at 49.6–50 Hz
+    (docs/measurements/peakfix.md)."""
     df = float(report.freq[1] - report.freq[0]) if len(report.freq) > 1 else 0.0
     low, high = report.peak_band_hz or (BAND_LOW_HZ, math.inf)
     return max(low, BAND_LOW_HZ) + 2 * df <= report.peak_hz <= high
