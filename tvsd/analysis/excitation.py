@@ -15,13 +15,23 @@ angle is known to within a count, so its error is at least a uniform one's (quan
 without it a stuck encoder that flickers a count now and then had a MAD of 0 and passed. The
 floor also refuses a shaft turning steadily at ≤ 0.2 counts per sample (its rows stay under
 5 σ of it), so the refusal names both: noise or quantisation, stuck or too slow.
+
+A speed sensor of its own (a tachometer) can carry a constant offset, its zero error: a stuck
+shaft then reads |ω| ≈ offset ≫ its noise in every row and passed. When the file also measures
+the angle φ, a shaft that moves moves its angle too, so the same test runs a second time on φ's
+count difference (backward, as an encoder's; its own noise and count floor): too few rows
+moving there is no excitation as well, and the line says that the speed and the angle disagree.
+A closed-loop scan at a constant speed turns φ steadily: every row moves in both.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from tvsd.analysis.prep import Prepared
+from tvsd.analysis.count_grid import STEP_KEY
+from tvsd.analysis.prep import Prepared, prepare
 from tvsd.analysis.quantisation import count_step
 from tvsd.errors import DataFileError
 
@@ -30,6 +40,7 @@ MAD_TO_SIGMA = 1.4826  # a normal sample's standard deviation over its median ab
 # probability 2·Φ(−5) = 5.7e-7, so noise alone gives no moving row in any file up to hours long.
 CLEAR = 5.0
 ROWS_PER_COLUMN = 10  # moving rows per baseline column, the rule doctor.py applies to the fit
+ANGLE_KEY = "speed_from_angle"  # Dataset.meta of angle_speed's copy: its speed is φ's difference
 
 
 def raw_speed(prep: Prepared) -> np.ndarray:
@@ -44,7 +55,8 @@ def noise_taps(prep: Prepared) -> np.ndarray:
     d = prep.data
     if d.speed is None:
         return np.array([0.5, 0.0, -0.5])
-    return np.array([1.0, -1.0]) if count_step(prep) is not None else np.array([1.0])
+    differenced = count_step(prep) is not None or ANGLE_KEY in d.meta
+    return np.array([1.0, -1.0]) if differenced else np.array([1.0])
 
 
 def speed_noise(prep: Prepared) -> float:
@@ -89,20 +101,50 @@ def row_noise(prep: Prepared) -> float:
     return speed_noise(prep) * noise_gain(prep)
 
 
-def check_moving(prep: Prepared, columns: int) -> None:
-    """DataFileError (exit 2) when fewer than ROWS_PER_COLUMN·columns rows move clear of the noise."""
-    d = prep.data
+def moving_rows(prep: Prepared) -> tuple[int, int, float]:
+    """(rows whose speed stands clear of CLEAR·σ, rows, σ of the rows' noise)."""
     w = np.abs(prep.rows(prep.speed))
     sigma = row_noise(prep)
-    moving = int(np.count_nonzero(w > CLEAR * sigma))
+    return int(np.count_nonzero(w > CLEAR * sigma)), len(w), sigma
+
+
+def angle_speed(prep: Prepared) -> Prepared | None:
+    """The recording with φ's backward difference as its speed (an encoder's count difference), or
+    None when the file has no angle of its own (φ integrated from ω) or no separate speed."""
+    d = prep.data
+    if d.speed is None or not d.position_measured or len(d.position) < 2:
+        return None
+    diff = np.diff(d.position) * d.sample_rate_hz
+    meta = {k: v for k, v in d.meta.items() if k != STEP_KEY}  # that step was the speed column's
+    meta[ANGLE_KEY] = "1"
+    return prepare(dataclasses.replace(d, speed=np.concatenate([diff[:1], diff]), meta=meta), prep.band)
+
+
+def check_moving(prep: Prepared, columns: int) -> None:
+    """DataFileError (exit 2) when fewer than ROWS_PER_COLUMN·columns rows move clear of the noise,
+    in the speed or, when the file measures it too, in the angle."""
+    d = prep.data
+    moving, rows, sigma = moving_rows(prep)
     need = ROWS_PER_COLUMN * columns
+    if moving >= need:
+        angle = angle_speed(prep)
+        turned, _, angle_sigma = moving_rows(angle) if angle is not None else (need, rows, 0.0)
+        if turned < need:
+            raise DataFileError(
+                f"{d.path or d.name}: no excitation: the speed column stands clear of its noise in "
+                f"{moving} of {rows} regression rows, but the angle phi moves clear of its noise or "
+                f"count step ({CLEAR:g} × {angle_sigma:.3g} {d.units.speed}) in only {turned} (at least "
+                f"{need} needed): the shaft stood still and the speed sensor reads an offset (a "
+                "tachometer's zero error), or phi is not this shaft's angle; record the drive moving, "
+                "or check the speed and phi columns"
+            )
     if moving < need:
         # The count floor sets σ for a stuck encoder and for one turning under ~0.2 counts per
         # sample alike: the message must hold for both.
         source = "its noise or its encoder's quantisation" if count_step(prep) is not None else "its noise"
         raise DataFileError(
             f"{d.path or d.name}: no excitation: the shaft's speed stands clear of {source} "
-            f"({CLEAR:g} × {sigma:.3g} {d.units.speed}, from the data) in only {moving} of its {len(w)} "
+            f"({CLEAR:g} × {sigma:.3g} {d.units.speed}, from the data) in only {moving} of its {rows} "
             f"regression rows (at least {need} needed): the drive did not break away or turns too "
             "slowly to be seen; excite it harder or longer"
         )
