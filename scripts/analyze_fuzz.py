@@ -308,7 +308,7 @@ def build(base: Path, out: Path, seed: int, prefix: str, full: bool) -> list[Var
         )
         texts = {k: v for k, v in texts.items() if k.startswith(keep)}
     for i, (name, (expect, content)) in enumerate(texts.items()):
-        p = out / f"{prefix}{i:03d}.csv"
+        p = out / f"{prefix.rstrip(': ')}{i:03d}.csv"
         p.write_bytes(content if isinstance(content, bytes) else content.encode("utf-8"))
         vs.append(Variant(f"{prefix}{name}", expect, p))
     if not full:

@@ -3,8 +3,9 @@
     nice -n 19 .venv/bin/python scripts/excite_angle_rows.py FILE...
 
 For each recording: the regression rows whose speed stands clear of CLEAR·σ (the check before),
-those whose angle φ's difference does (the check added: tvsd.analysis.excitation.angle_speed),
-the rows needed (ROWS_PER_COLUMN × the baseline's columns), and whether each check refuses.
+the rows needed (ROWS_PER_COLUMN × the baseline's columns), and the check added
+(tvsd.analysis.excitation.angle_agrees): of the 20 stretches in which the speed's integral says
+the shaft turned clear of the angle's noise, how many φ's change agrees with (refused under half).
 Loading errors are printed as such. The last line counts the files each check refuses.
 """
 
@@ -37,14 +38,14 @@ def main(paths: list[str]) -> int:
             * absorber.absorb(D.build(prep, data.offset_term, data.units.axis == "rotary")).X.shape[1]
         )
         moving, rows, sigma = excitation.moving_rows(prep)
-        angle = excitation.angle_speed(prep)
-        turned, _, asig = excitation.moving_rows(angle) if angle is not None else (-1, rows, 0.0)
+        has_angle = data.speed is not None and data.position_measured
+        claimed, agreed, clear = excitation.angle_agrees(data) if has_angle else (-1, -1, 0.0)
         n += 1
         by_speed += moving < need
-        by_angle += moving >= need and 0 <= turned < need
+        by_angle += moving >= need and 2 * agreed < claimed
         print(
             f"{Path(name).name}: rows {rows}, need {need}, speed moving {moving} (5σ {5 * sigma:.3g}), "
-            f"angle moving {turned if turned >= 0 else '-'} (5σ {5 * asig:.3g})"
+            f"angle agrees in {agreed} of {claimed} stretches (threshold {clear:.3g})"
         )
     print(f"{n} files: refused by the speed {by_speed}, by the angle (new) {by_angle}")
     return 0

@@ -234,3 +234,13 @@ def test_a_stuck_drive_with_a_tach_offset_is_one_line_exit_2(tmp_path, capsys):
     assert main(["analyze", str(path), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "no excitation" in err and "tach_offset.csv" in err and err.count("\n") == 1, err
+
+
+def test_a_slow_shaft_with_a_tach_and_a_coarse_encoder_is_not_refused(tmp_path):
+    """0.1 counts of a 1024-count encoder per sample (0.61 rad/s, 30 σ of the tach): the tach
+    sees it move in every row, the angle steps a count only every 10 samples. Read row by row, φ's
+    count difference stays under its quantisation (excite2's floor) and the file would be refused;
+    over a twentieth of the record (1000 samples) φ climbs 100 counts."""
+    q = 2 * np.pi / 1024
+    prep = _tach_file(tmp_path / "slow.csv", np.full(20 * FS, 0.1 * q * FS), 0.0, 1024, seed=7)
+    X.check_moving(prep, 8)

@@ -18,20 +18,20 @@ floor also refuses a shaft turning steadily at ≤ 0.2 counts per sample (its ro
 
 A speed sensor of its own (a tachometer) can carry a constant offset, its zero error: a stuck
 shaft then reads |ω| ≈ offset ≫ its noise in every row and passed. When the file also measures
-the angle φ, a shaft that moves moves its angle too, so the same test runs a second time on φ's
-count difference (backward, as an encoder's; its own noise and count floor): too few rows
-moving there is no excitation as well, and the line says that the speed and the angle disagree.
-A closed-loop scan at a constant speed turns φ steadily: every row moves in both.
+the angle φ, a shaft that moves moves its angle too: over 20 stretches of the record the speed's
+integral is compared with φ's change, and where the speed says the shaft turned clear of the
+angle's noise (or its count) φ must have too, in at least half of them. The stretches are long
+(a twentieth of the record) so that a slow shaft with a coarse encoder climbs many counts in
+each; a closed-loop scan at a constant speed turns φ in every one.
 """
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
-from tvsd.analysis.count_grid import STEP_KEY
-from tvsd.analysis.prep import Prepared, prepare
+from tvsd.analysis.count_grid import read_step
+from tvsd.analysis.dataset import Dataset
+from tvsd.analysis.prep import Prepared
 from tvsd.analysis.quantisation import count_step
 from tvsd.errors import DataFileError
 
@@ -40,7 +40,9 @@ MAD_TO_SIGMA = 1.4826  # a normal sample's standard deviation over its median ab
 # probability 2·Φ(−5) = 5.7e-7, so noise alone gives no moving row in any file up to hours long.
 CLEAR = 5.0
 ROWS_PER_COLUMN = 10  # moving rows per baseline column, the rule doctor.py applies to the fit
-ANGLE_KEY = "speed_from_angle"  # Dataset.meta of angle_speed's copy: its speed is φ's difference
+# The angle is compared with the speed's integral over this many stretches of the record, and
+# refused when it agrees in fewer than half of those where the speed says it turned visibly.
+ANGLE_STRETCHES = 20
 
 
 def raw_speed(prep: Prepared) -> np.ndarray:
@@ -55,8 +57,7 @@ def noise_taps(prep: Prepared) -> np.ndarray:
     d = prep.data
     if d.speed is None:
         return np.array([0.5, 0.0, -0.5])
-    differenced = count_step(prep) is not None or ANGLE_KEY in d.meta
-    return np.array([1.0, -1.0]) if differenced else np.array([1.0])
+    return np.array([1.0, -1.0]) if count_step(prep) is not None else np.array([1.0])
 
 
 def speed_noise(prep: Prepared) -> float:
@@ -108,16 +109,30 @@ def moving_rows(prep: Prepared) -> tuple[int, int, float]:
     return int(np.count_nonzero(w > CLEAR * sigma)), len(w), sigma
 
 
-def angle_speed(prep: Prepared) -> Prepared | None:
-    """The recording with φ's backward difference as its speed (an encoder's count difference), or
-    None when the file has no angle of its own (φ integrated from ω) or no separate speed."""
-    d = prep.data
-    if d.speed is None or not d.position_measured or len(d.position) < 2:
-        return None
-    diff = np.diff(d.position) * d.sample_rate_hz
-    meta = {k: v for k, v in d.meta.items() if k != STEP_KEY}  # that step was the speed column's
-    meta[ANGLE_KEY] = "1"
-    return prepare(dataclasses.replace(d, speed=np.concatenate([diff[:1], diff]), meta=meta), prep.band)
+def angle_noise(d: Dataset) -> float:
+    """σ of the angle's own error: a robust spread of its second differences (white error: 6σ²),
+    never under a count's uniform error q/√12 when φ lies on a count grid (declared or seen)."""
+    d2 = np.diff(d.position, 2)
+    mad = MAD_TO_SIGMA * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0) if len(d2) else 0.0
+    counts = d.meta.get("encoder_counts_per_rev")
+    q = 2 * np.pi / float(counts) if counts is not None else read_step(np.diff(d.position))
+    return max(mad, 0.0 if q is None else q / np.sqrt(12.0))
+
+
+def angle_agrees(d: Dataset) -> tuple[int, int, float]:
+    """(stretches in which the speed says the shaft turned clear of the angle's noise, those of
+    them in which the angle did, that threshold in the angle's units), over ANGLE_STRETCHES
+    stretches of the record: the speed's integral against φ's change, end to end. Long
+    stretches let a slow shaft's angle climb out of a coarse encoder's count."""
+    n = len(d.t)
+    edges = np.linspace(0, n - 1, ANGLE_STRETCHES + 1).astype(int)
+    assert d.speed is not None
+    travelled = np.concatenate([[0.0], np.cumsum(0.5 * (d.speed[1:] + d.speed[:-1]) * np.diff(d.t))])
+    claimed = np.abs(np.diff(travelled[edges]))
+    seen = np.abs(np.diff(d.position[edges]))
+    clear = CLEAR * np.sqrt(2.0) * angle_noise(d)  # the difference of two samples' errors
+    visible = claimed > clear
+    return int(visible.sum()), int(np.count_nonzero(visible & (seen > clear))), clear
 
 
 def check_moving(prep: Prepared, columns: int) -> None:
@@ -126,17 +141,17 @@ def check_moving(prep: Prepared, columns: int) -> None:
     d = prep.data
     moving, rows, sigma = moving_rows(prep)
     need = ROWS_PER_COLUMN * columns
-    if moving >= need:
-        angle = angle_speed(prep)
-        turned, _, angle_sigma = moving_rows(angle) if angle is not None else (need, rows, 0.0)
-        if turned < need:
+    if moving >= need and d.speed is not None and d.position_measured:
+        claimed, agreed, clear = angle_agrees(d)
+        if 2 * agreed < claimed:
             raise DataFileError(
                 f"{d.path or d.name}: no excitation: the speed column stands clear of its noise in "
-                f"{moving} of {rows} regression rows, but the angle phi moves clear of its noise or "
-                f"count step ({CLEAR:g} × {angle_sigma:.3g} {d.units.speed}) in only {turned} (at least "
-                f"{need} needed): the shaft stood still and the speed sensor reads an offset (a "
-                "tachometer's zero error), or phi is not this shaft's angle; record the drive moving, "
-                "or check the speed and phi columns"
+                f"{moving} of {rows} regression rows and says the shaft turned in {claimed} of "
+                f"{ANGLE_STRETCHES} stretches of the record, but the angle phi moved (by more than "
+                f"{clear:.3g} {d.units.position}, {CLEAR:g} × its noise or count) in only {agreed}: the "
+                "shaft stood still and the speed sensor reads an offset (a tachometer's zero error), or "
+                "phi is not this shaft's angle (a placeholder? leave the column out and the doctor "
+                "integrates omega); record the drive moving"
             )
     if moving < need:
         # The count floor sets σ for a stuck encoder and for one turning under ~0.2 counts per

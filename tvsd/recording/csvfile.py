@@ -177,9 +177,11 @@ def decode(path: Path, raw: bytes) -> str:
         raise DataFileError(f"{path}: a gzip-compressed file; decompress it first (gunzip -k {path.name})")
     if raw.startswith(UTF16_BOMS):
         try:
-            return raw.decode("utf-16")
+            text = raw.decode("utf-16")
         except UnicodeDecodeError:
-            pass  # not UTF-16 after all: named below
+            text = ""
+        if text.lstrip("\ufeff").startswith("#"):  # a recording's first line; else binary, named below
+            return text.lstrip("\ufeff")
     if b"\0" in raw[:65536]:
         at = raw.index(b"\0")
         row = raw.count(b"\n", 0, at) + 1
