@@ -244,3 +244,13 @@ def test_a_slow_shaft_with_a_tach_and_a_coarse_encoder_is_not_refused(tmp_path):
     q = 2 * np.pi / 1024
     prep = _tach_file(tmp_path / "slow.csv", np.full(20 * FS, 0.1 * q * FS), 0.0, 1024, seed=7)
     X.check_moving(prep, 8)
+
+
+@pytest.mark.parametrize("counts", [256, None])
+def test_a_swinging_shaft_whose_tach_has_an_offset_is_not_refused(tmp_path, counts):
+    """A ±5 rad/s 1 Hz square wave of speed, 20 s, and the same 2 rad/s tach offset: over 1 s
+    stretches its angle's net travel is 0 while the offset speed's is 2 rad, so a net-travel
+    comparison refuses a shaft that swings 2.5 rad each half period; the ranges agree."""
+    t = np.arange(20 * FS) / FS
+    prep = _tach_file(tmp_path / "swing.csv", np.where((t % 1) < 0.5, 5.0, -5.0), 2.0, counts, seed=12)
+    X.check_moving(prep, 8)

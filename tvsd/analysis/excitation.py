@@ -18,14 +18,16 @@ floor also refuses a shaft turning steadily at ≤ 0.2 counts per sample (its ro
 
 A speed sensor of its own (a tachometer) can carry a constant offset, its zero error: a stuck
 shaft then reads |ω| ≈ offset ≫ its noise in every row and passed. When the file also measures
-the angle φ, a shaft that moves moves its angle too: over 20 stretches of the record the speed's
-integral is compared with φ's change, and where the speed says the shaft turned clear of the
-angle's noise (or its count) φ must have too, in at least half of them. The stretches are long
-(a twentieth of the record) so that a slow shaft with a coarse encoder climbs many counts in
-each; a closed-loop scan at a constant speed turns φ in every one.
+the angle φ, a shaft that moves moves its angle too: over 20 stretches of the record the range
+of the speed's integral is compared with φ's, and where the speed says the shaft turned farther
+than the angle's noise (or its count) reaches, φ must have too, in at least half of them. The
+stretches are long (a twentieth of the record) so that a slow shaft with a coarse encoder climbs
+many counts in each; a closed-loop scan at a constant speed turns φ in every one.
 """
 
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 
@@ -120,19 +122,23 @@ def angle_noise(d: Dataset) -> float:
 
 
 def angle_agrees(d: Dataset) -> tuple[int, int, float]:
-    """(stretches in which the speed says the shaft turned clear of the angle's noise, those of
-    them in which the angle did, that threshold in the angle's units), over ANGLE_STRETCHES
-    stretches of the record: the speed's integral against φ's change, end to end. Long
-    stretches let a slow shaft's angle climb out of a coarse encoder's count."""
-    n = len(d.t)
-    edges = np.linspace(0, n - 1, ANGLE_STRETCHES + 1).astype(int)
+    """(stretches in which the speed says the shaft turned farther than the angle's noise can
+    reach, those of them in which the angle did, that reach in the angle's units), over
+    ANGLE_STRETCHES stretches of the record. Each compares ranges (max − min) within the stretch,
+    of the speed's integral and of φ: net travel would cancel over a whole period of an
+    oscillation (a 1 Hz square wave in 1 s stretches), and an offset speed would then disagree
+    with a shaft that swings. The reach is the range L white samples of σ span (≈ 2·√(2 ln L)·σ)
+    plus CLEAR·σ; long stretches let a slow shaft's angle climb out of a coarse encoder's count."""
     assert d.speed is not None
+    n = len(d.t)
+    edges = np.linspace(0, n, ANGLE_STRETCHES + 1).astype(int)
     travelled = np.concatenate([[0.0], np.cumsum(0.5 * (d.speed[1:] + d.speed[:-1]) * np.diff(d.t))])
-    claimed = np.abs(np.diff(travelled[edges]))
-    seen = np.abs(np.diff(d.position[edges]))
-    clear = CLEAR * np.sqrt(2.0) * angle_noise(d)  # the difference of two samples' errors
-    visible = claimed > clear
-    return int(visible.sum()), int(np.count_nonzero(visible & (seen > clear))), clear
+    length = max(int(np.min(np.diff(edges))), 2)
+    reach = (2.0 * np.sqrt(2.0 * np.log(length)) + CLEAR) * angle_noise(d)
+    claimed = np.array([np.ptp(travelled[i:j]) for i, j in itertools.pairwise(edges)])
+    seen = np.array([np.ptp(d.position[i:j]) for i, j in itertools.pairwise(edges)])
+    visible = claimed > reach
+    return int(visible.sum()), int(np.count_nonzero(visible & (seen > reach))), float(reach)
 
 
 def check_moving(prep: Prepared, columns: int) -> None:
@@ -147,8 +153,8 @@ def check_moving(prep: Prepared, columns: int) -> None:
             raise DataFileError(
                 f"{d.path or d.name}: no excitation: the speed column stands clear of its noise in "
                 f"{moving} of {rows} regression rows and says the shaft turned in {claimed} of "
-                f"{ANGLE_STRETCHES} stretches of the record, but the angle phi moved (by more than "
-                f"{clear:.3g} {d.units.position}, {CLEAR:g} × its noise or count) in only {agreed}: the "
+                f"{ANGLE_STRETCHES} stretches of the record, but the angle phi moved farther than its "
+                f"noise or count reaches ({clear:.3g} {d.units.position}) in only {agreed}: the "
                 "shaft stood still and the speed sensor reads an offset (a tachometer's zero error), or "
                 "phi is not this shaft's angle (a placeholder? leave the column out and the doctor "
                 "integrates omega); record the drive moving"
