@@ -180,3 +180,77 @@ def test_a_stuck_heldout_file_is_refused_naming_it(tmp_path, capsys):
     assert main(["analyze", str(fit), "--heldout", str(stuck), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "no excitation" in err and "stuck_heldout.csv" in err and err.count("\n") == 1, err
+
+
+def _tach_file(path, speed, offset: float, counts: int | None, seed: int):
+    """A tachometer's speed (white noise SIGMA, a constant `offset`: its zero error) beside the
+    shaft's angle: an encoder of `counts` (whole counts, the true angle jittered by 0.25 counts
+    so that a stuck one flickers) or, with counts None, an analog angle with 1 mrad white noise."""
+    n = len(speed)
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / FS
+    angle = 0.3 + np.cumsum(speed) / FS
+    if counts is None:
+        phi = angle + 1e-3 * rng.standard_normal(n)
+    else:
+        q = 2 * np.pi / counts
+        phi = np.floor((angle + 0.25 * q * rng.standard_normal(n)) / q) * q
+    omega = speed + offset + SIGMA * rng.standard_normal(n)
+    u = 1.0 + 0.5 * np.sin(2 * np.pi * 0.5 * t)
+    lines = ["# tvs-recording: 1", f"# sample_rate_hz: {FS}"]
+    lines += [] if counts is None else [f"# encoder_counts_per_rev: {counts}"]
+    lines += ["t,u,omega,phi"]
+    lines += [
+        f"{a:.4f},{b!r},{c!r},{d!r}"
+        for a, b, c, d in zip(t.tolist(), u.tolist(), omega.tolist(), phi.tolist(), strict=True)
+    ]
+    path.write_text("\n".join(lines) + "\n")
+    return prepare(load(path, load_config()), Band())
+
+
+@pytest.mark.parametrize("counts", [1024, 8192, None])
+def test_a_stuck_drive_whose_tach_reads_an_offset_is_refused(tmp_path, counts):
+    """A stuck shaft, its tachometer reading a 2 rad/s zero error (100 σ): every row's speed stood
+    clear of the noise and the file was analysed (before). Its angle does not move, and that is
+    now read too: refused, the line naming the disagreement."""
+    prep = _tach_file(tmp_path / "offset.csv", np.zeros(20 * FS), 2.0, counts, seed=4)
+    with pytest.raises(DataFileError, match=r"no excitation.*angle phi.*offset"):
+        X.check_moving(prep, 8)
+
+
+@pytest.mark.parametrize("counts", [1024, None])
+def test_a_scan_at_constant_speed_with_a_tach_and_an_angle_is_not_refused(tmp_path, counts):
+    """Closed-loop scanning: one way at a nearly constant 20 rev/s (ω ≈ 125.7 rad/s, no
+    acceleration to speak of), with the same offset. Its angle turns 126 rad/s: every row moves."""
+    speed = np.full(20 * FS, 2 * np.pi * 20) + 0.5 * np.sin(2 * np.pi * 3 * np.arange(20 * FS) / FS)
+    prep = _tach_file(tmp_path / "scan.csv", speed, 2.0, counts, seed=5)
+    X.check_moving(prep, 8)
+
+
+def test_a_stuck_drive_with_a_tach_offset_is_one_line_exit_2(tmp_path, capsys):
+    """The whole command: exit 2 and one line naming the file."""
+    path = tmp_path / "tach_offset.csv"
+    _tach_file(path, np.zeros(20 * FS), 2.0, 1024, seed=6)
+    assert main(["analyze", str(path), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "no excitation" in err and "tach_offset.csv" in err and err.count("\n") == 1, err
+
+
+def test_a_slow_shaft_with_a_tach_and_a_coarse_encoder_is_not_refused(tmp_path):
+    """0.1 counts of a 1024-count encoder per sample (0.61 rad/s, 30 σ of the tach): the tach
+    sees it move in every row, the angle steps a count only every 10 samples. Read row by row, φ's
+    count difference stays under its quantisation (excite2's floor) and the file would be refused;
+    over a twentieth of the record (1000 samples) φ climbs 100 counts."""
+    q = 2 * np.pi / 1024
+    prep = _tach_file(tmp_path / "slow.csv", np.full(20 * FS, 0.1 * q * FS), 0.0, 1024, seed=7)
+    X.check_moving(prep, 8)
+
+
+@pytest.mark.parametrize("counts", [256, None])
+def test_a_swinging_shaft_whose_tach_has_an_offset_is_not_refused(tmp_path, counts):
+    """A ±5 rad/s 1 Hz square wave of speed, 20 s, and the same 2 rad/s tach offset: over 1 s
+    stretches its angle's net travel is 0 while the offset speed's is 2 rad, so a net-travel
+    comparison refuses a shaft that swings 2.5 rad each half period; the ranges agree."""
+    t = np.arange(20 * FS) / FS
+    prep = _tach_file(tmp_path / "swing.csv", np.where((t % 1) < 0.5, 5.0, -5.0), 2.0, counts, seed=12)
+    X.check_moving(prep, 8)

@@ -46,7 +46,7 @@ def test_phi_is_integrated_from_omega_when_absent(tmp_path):
             "missing column(s) omega",
         ),
         (GOOD + "0,1,2,3\n0.001,1,nan,3\n", 6, "NaN"),
-        (GOOD + "0,1,2,3\n0.001,1,2\n", 6, "3 values, the header has 4"),
+        (GOOD + "0,1,2,3\n0.001,1,2\n", 6, "3 values in '0.001,1,2', the header t,u,omega,phi has 4"),
         (GOOD + "0,1,2,3\n0.001,1,x,3\n", 6, "not a number"),
         (GOOD + "0,1,2,3\n0.001,1,2,3\n0.0005,1,2,3\n", 7, "does not increase"),
         (GOOD + "0,1,2,3\n0.001,1,2,3\n0.003,1,2,3\n", 7, "differs from 1/sample_rate_hz"),
@@ -67,7 +67,7 @@ def test_missing_and_binary_files(tmp_path):
         read(tmp_path / "none.csv")
     binary = tmp_path / "b.csv"
     binary.write_bytes(b"\xff\xfe\x00\x01")
-    with pytest.raises(DataFileError, match="not a text file"):
+    with pytest.raises(DataFileError, match="binary data, not a recording CSV"):
         read(binary)
 
 
@@ -80,7 +80,7 @@ def test_whole_body_parse_equals_row_by_row_and_bad_rows_still_named(tmp_path):
     fields = ["0.001", " 2.5", "+3", "-1e-3", "4.000000001", "1_0", "7e14", "-0.0"]
     body = [",".join(fields[(k + j) % len(fields)] for j in range(4)) for k in range(64)]
     fast = csvfile._parse_fast(body, 4)
-    slow = csvfile._parse_slow(body, 0, 4, lambda row, msg: DataFileError(msg))
+    slow = csvfile._parse_slow(body, 0, ["t", "u", "omega", "phi"], lambda row, msg: DataFileError(msg), True)
     assert fast is not None and np.array_equal(fast, slow)
     assert np.array_equal(fast[:, 0], [float(fields[k % len(fields)]) for k in range(64)])
     rows = "".join(f"{k / 1000:.3f},1.0,2.0,0.0\n" for k in range(500)).splitlines(keepends=True)

@@ -60,6 +60,8 @@ class Dataset:
     excitation_hz: tuple[float, ...] = ()  # the excitation's declared lines (`# excitation_hz:`)
     # rows tvsctl export filled by interpolation across a stall (its `gap` column = 1), or None
     filled: np.ndarray | None = None
+    # whether `position` was measured (a phi column, EMPS' qm) or integrated from the speed
+    position_measured: bool = True
 
     @property
     def duration_s(self) -> float:
@@ -84,6 +86,7 @@ class Dataset:
             {k: v[start:stop] for k, v in self.refs.items()},
             self.excitation_hz,
             None if self.filled is None else self.filled[start:stop],
+            self.position_measured,
         )
 
 
@@ -160,6 +163,7 @@ def load(path: Path, cfg: Config) -> Dataset:
         refs=refs,
         excitation_hz=rec.excitation_hz,
         filled=rec.extra["gap"] != 0 if "gap" in rec.extra else None,
+        position_measured=rec.phi_measured,
     )
 
 
@@ -216,3 +220,18 @@ def load_emps(path: Path) -> Dataset:
         path=path,
         u_unit="N",
     )
+
+
+def check_heldout(data: Dataset, heldout: Dataset) -> None:
+    """`--heldout FILE` judges the model fitted on `data`: refused (exit 2) when its command is
+    another kind (u_unit: V, A, N*m, N; duty counts as V, read in volts) or its axis another,
+    since the fitted input map and units do not apply to it. Its rate may differ: the model is
+    in continuous time."""
+    ours = f"{data.u_unit} ({data.units.axis})"
+    theirs = f"{heldout.u_unit} ({heldout.units.axis})"
+    if ours != theirs:
+        raise DataFileError(
+            f"{heldout.path or heldout.name}: --heldout's command u is in {theirs}, the fitted file's "
+            f"({data.name}) in {ours} (# u_unit): the model fitted on one input cannot be judged on "
+            "the other; give a held-out recording of the same drive and command"
+        )

@@ -15,12 +15,24 @@ angle is known to within a count, so its error is at least a uniform one's (quan
 without it a stuck encoder that flickers a count now and then had a MAD of 0 and passed. The
 floor also refuses a shaft turning steadily at ≤ 0.2 counts per sample (its rows stay under
 5 σ of it), so the refusal names both: noise or quantisation, stuck or too slow.
+
+A speed sensor of its own (a tachometer) can carry a constant offset, its zero error: a stuck
+shaft then reads |ω| ≈ offset ≫ its noise in every row and passed. When the file also measures
+the angle φ, a shaft that moves moves its angle too: over 20 stretches of the record the range
+of the speed's integral is compared with φ's, and where the speed says the shaft turned farther
+than the angle's noise (or its count) reaches, φ must have too, in at least half of them. The
+stretches are long (a twentieth of the record) so that a slow shaft with a coarse encoder climbs
+many counts in each; a closed-loop scan at a constant speed turns φ in every one.
 """
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
+from tvsd.analysis.count_grid import read_step
+from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.prep import Prepared
 from tvsd.analysis.quantisation import count_step
 from tvsd.errors import DataFileError
@@ -30,6 +42,9 @@ MAD_TO_SIGMA = 1.4826  # a normal sample's standard deviation over its median ab
 # probability 2·Φ(−5) = 5.7e-7, so noise alone gives no moving row in any file up to hours long.
 CLEAR = 5.0
 ROWS_PER_COLUMN = 10  # moving rows per baseline column, the rule doctor.py applies to the fit
+# The angle is compared with the speed's integral over this many stretches of the record, and
+# refused when it agrees in fewer than half of those where the speed says it turned visibly.
+ANGLE_STRETCHES = 20
 
 
 def raw_speed(prep: Prepared) -> np.ndarray:
@@ -89,20 +104,68 @@ def row_noise(prep: Prepared) -> float:
     return speed_noise(prep) * noise_gain(prep)
 
 
-def check_moving(prep: Prepared, columns: int) -> None:
-    """DataFileError (exit 2) when fewer than ROWS_PER_COLUMN·columns rows move clear of the noise."""
-    d = prep.data
+def moving_rows(prep: Prepared) -> tuple[int, int, float]:
+    """(rows whose speed stands clear of CLEAR·σ, rows, σ of the rows' noise)."""
     w = np.abs(prep.rows(prep.speed))
     sigma = row_noise(prep)
-    moving = int(np.count_nonzero(w > CLEAR * sigma))
+    return int(np.count_nonzero(w > CLEAR * sigma)), len(w), sigma
+
+
+def angle_noise(d: Dataset) -> float:
+    """σ of the angle's own error: a robust spread of its second differences (white error: 6σ²),
+    never under a count's uniform error q/√12 when φ lies on a count grid (declared or seen)."""
+    d2 = np.diff(d.position, 2)
+    mad = MAD_TO_SIGMA * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0) if len(d2) else 0.0
+    counts = d.meta.get("encoder_counts_per_rev")
+    q = 2 * np.pi / float(counts) if counts is not None else read_step(np.diff(d.position))
+    return max(mad, 0.0 if q is None else q / np.sqrt(12.0))
+
+
+def angle_agrees(d: Dataset) -> tuple[int, int, float]:
+    """(stretches in which the speed says the shaft turned farther than the angle's noise can
+    reach, those of them in which the angle did, that reach in the angle's units), over
+    ANGLE_STRETCHES stretches of the record. Each compares ranges (max − min) within the stretch,
+    of the speed's integral and of φ: net travel would cancel over a whole period of an
+    oscillation (a 1 Hz square wave in 1 s stretches), and an offset speed would then disagree
+    with a shaft that swings. The reach is the range L white samples of σ span (≈ 2·√(2 ln L)·σ)
+    plus CLEAR·σ; long stretches let a slow shaft's angle climb out of a coarse encoder's count."""
+    assert d.speed is not None
+    n = len(d.t)
+    edges = np.linspace(0, n, ANGLE_STRETCHES + 1).astype(int)
+    travelled = np.concatenate([[0.0], np.cumsum(0.5 * (d.speed[1:] + d.speed[:-1]) * np.diff(d.t))])
+    length = max(int(np.min(np.diff(edges))), 2)
+    reach = (2.0 * np.sqrt(2.0 * np.log(length)) + CLEAR) * angle_noise(d)
+    claimed = np.array([np.ptp(travelled[i:j]) for i, j in itertools.pairwise(edges)])
+    seen = np.array([np.ptp(d.position[i:j]) for i, j in itertools.pairwise(edges)])
+    visible = claimed > reach
+    return int(visible.sum()), int(np.count_nonzero(visible & (seen > reach))), float(reach)
+
+
+def check_moving(prep: Prepared, columns: int) -> None:
+    """DataFileError (exit 2) when fewer than ROWS_PER_COLUMN·columns rows move clear of the noise,
+    in the speed or, when the file measures it too, in the angle."""
+    d = prep.data
+    moving, rows, sigma = moving_rows(prep)
     need = ROWS_PER_COLUMN * columns
+    if moving >= need and d.speed is not None and d.position_measured:
+        claimed, agreed, clear = angle_agrees(d)
+        if 2 * agreed < claimed:
+            raise DataFileError(
+                f"{d.path or d.name}: no excitation: the speed column stands clear of its noise in "
+                f"{moving} of {rows} regression rows and says the shaft turned in {claimed} of "
+                f"{ANGLE_STRETCHES} stretches of the record, but the angle phi moved farther than its "
+                f"noise or count reaches ({clear:.3g} {d.units.position}) in only {agreed}: the "
+                "shaft stood still and the speed sensor reads an offset (a tachometer's zero error), or "
+                "phi is not this shaft's angle (a placeholder? leave the column out and the doctor "
+                "integrates omega); record the drive moving"
+            )
     if moving < need:
         # The count floor sets σ for a stuck encoder and for one turning under ~0.2 counts per
         # sample alike: the message must hold for both.
         source = "its noise or its encoder's quantisation" if count_step(prep) is not None else "its noise"
         raise DataFileError(
             f"{d.path or d.name}: no excitation: the shaft's speed stands clear of {source} "
-            f"({CLEAR:g} × {sigma:.3g} {d.units.speed}, from the data) in only {moving} of its {len(w)} "
+            f"({CLEAR:g} × {sigma:.3g} {d.units.speed}, from the data) in only {moving} of its {rows} "
             f"regression rows (at least {need} needed): the drive did not break away or turns too "
             "slowly to be seen; excite it harder or longer"
         )

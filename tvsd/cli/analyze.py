@@ -60,7 +60,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def _run(args: argparse.Namespace) -> int:
     from tvsd.analysis import memory
     from tvsd.analysis import report as R
-    from tvsd.analysis.dataset import load
+    from tvsd.analysis.dataset import check_heldout, load
     from tvsd.analysis.doctor import diagnose
     from tvsd.analysis.noise import COLOUR_P
     from tvsd.analysis.prep import EMPS_BAND, Band, check_filled
@@ -88,6 +88,8 @@ def _run(args: argparse.Namespace) -> int:
         if window.note:
             warn(window.note)
     heldout = load(args.heldout, cfg) if args.heldout else None
+    if heldout is not None:
+        check_heldout(data, heldout)
     band = EMPS_BAND if data.units.axis == "linear" else Band()
     for dataset in (data, heldout):  # refused in one line where the doctor would not fit in memory
         if dataset is not None:

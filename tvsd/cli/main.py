@@ -12,9 +12,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import re
 import select
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from tvsd import __version__
 from tvsd.errors import EXIT_INTERNAL, EXIT_PIPE, EXIT_USAGE, TvsdError
@@ -49,8 +51,17 @@ COMMANDS: dict[str, str] = {
 }
 
 
+# argparse takes `-1e3` for an option (its own pattern knows -1 and -.5 only) and refuses
+# `--start -1e3` with "expected one argument": this one knows a negative number in any float form.
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse that exits with EXIT_USAGE and a one-line hint, as every bad input should."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = NEGATIVE_NUMBER
 
     def error(self, message: str) -> None:  # type: ignore[override]
         self.print_usage(sys.stderr)

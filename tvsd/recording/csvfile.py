@@ -83,7 +83,7 @@ def read(path: Path) -> Recording:
     try:
         if not stat.S_ISREG(path.stat().st_mode) and not path.is_dir():  # /dev/zero: read until MemoryError
             raise DataFileError(f"{path}: not a regular file (a device or a pipe); give the recording CSV")
-        text = path.read_text(encoding="utf-8-sig")  # -sig: a spreadsheet's UTF-8 BOM is dropped
+        raw = path.read_bytes()
     except FileNotFoundError:
         raise DataFileError(f"{path}: no such file") from None
     except IsADirectoryError:
@@ -95,11 +95,9 @@ def read(path: Path) -> Recording:
         raise DataFileError(
             f"{path}: cannot read: permission denied; check the file's mode or owner"
         ) from None
-    except UnicodeDecodeError:
-        raise DataFileError(f"{path}: not a text file (expected a tvs recording CSV)") from None
     except OSError as exc:
         raise DataFileError(f"{path}: cannot read: {exc.strerror}") from exc
-    lines = text.splitlines()
+    lines = decode(path, raw).splitlines()
 
     def fail(row: int, problem: str) -> DataFileError:
         return DataFileError(f"{path}: row {row}: {problem}")
@@ -112,7 +110,7 @@ def read(path: Path) -> Recording:
             " (is this a tvs recording? see docs/architecture.md, 'Recording CSV')",
         )
     meta: dict[str, str] = {}
-    meta_row: dict[str, int] = {}
+    meta_row: dict[str, int] = {}  # the file's row of each key (errors name it)
     row = 1
     while row < len(lines) and lines[row].startswith("#"):
         key, colon, value = lines[row][1:].partition(":")
@@ -125,14 +123,17 @@ def read(path: Path) -> Recording:
         meta_row[key] = row + 1
         row += 1
     if "sample_rate_hz" not in meta:
-        raise fail(2, "missing '# sample_rate_hz: <Hz>' metadata line")
+        raise fail(2, "missing '# sample_rate_hz: <Hz>' metadata line; add it after the first line")
     try:
         rate = float(meta["sample_rate_hz"])
     except ValueError:
         rate = math.nan
     if not (math.isfinite(rate) and rate > 0):
-        raise fail(2, f"sample_rate_hz must be a positive number, got {meta['sample_rate_hz']!r}")
-    _check_unit(meta, fail)
+        raise fail(
+            meta_row["sample_rate_hz"],
+            f"sample_rate_hz must be a positive number (Hz), got {meta['sample_rate_hz']!r}: fix the line",
+        )
+    _check_unit(meta, meta_row, fail)
     lines_hz = excitation_lines(meta.get("excitation_hz"), rate, meta_row.get("excitation_hz", 2), fail)
     _check_counts(meta.get("encoder_counts_per_rev"), meta_row.get("encoder_counts_per_rev", 2), fail)
     if row >= len(lines):
@@ -149,7 +150,7 @@ def read(path: Path) -> Recording:
         )
     if len(set(header)) != len(header):
         raise fail(row + 1, f"duplicate column names in header {lines[row]!r}")
-    data = _parse_rows(lines, row + 1, len(header), fail)
+    data = _parse_rows(lines, row + 1, header, fail, ends_in_newline=raw.endswith((b"\n", b"\r")))
     cols = {name: data[:, j] for j, name in enumerate(header)}
     _check_time(cols["t"], rate, row + 2, fail)
     phi_measured = "phi" in cols
@@ -162,6 +163,40 @@ def read(path: Path) -> Recording:
     return Recording(
         cols["t"], cols["u"], cols["omega"], phi, rate, meta, extra, path, phi_measured, lines_hz
     )
+
+
+GZIP_MAGIC = b"\x1f\x8b"
+UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
+
+
+def decode(path: Path, raw: bytes) -> str:
+    """The file's text, or one line saying what the bytes are instead: compressed, UTF-16 (a
+    Windows editor's "Unicode"; its byte order mark makes it unambiguous, so it is read), another
+    8-bit encoding (the row and byte named), binary."""
+    if raw.startswith(GZIP_MAGIC):
+        raise DataFileError(f"{path}: a gzip-compressed file; decompress it first (gunzip -k {path.name})")
+    if raw.startswith(UTF16_BOMS):
+        try:
+            text = raw.decode("utf-16")
+        except UnicodeDecodeError:
+            text = ""
+        if text.lstrip("\ufeff").startswith("#"):  # a recording's first line; else binary, named below
+            return text.lstrip("\ufeff")
+    if b"\0" in raw[:65536]:
+        at = raw.index(b"\0")
+        row = raw.count(b"\n", 0, at) + 1
+        raise DataFileError(
+            f"{path}: row {row}: a NUL byte (at byte {at}): binary data, not a "
+            "recording CSV (a daemon recording becomes one with `tvsctl export REC --csv OUT`)"
+        )
+    try:
+        return raw.decode("utf-8-sig")  # -sig: a spreadsheet's UTF-8 BOM is dropped
+    except UnicodeDecodeError as exc:
+        row = raw.count(b"\n", 0, exc.start) + 1
+        raise DataFileError(
+            f"{path}: row {row}: byte 0x{raw[exc.start]:02x} is not UTF-8 text (a Latin-1 or Windows "
+            "file?): save the file as UTF-8 (the recording CSV is UTF-8)"
+        ) from None
 
 
 def _check_counts(value: str | None, row: int, fail: Failer) -> None:
@@ -209,14 +244,17 @@ def excitation_lines(value: str | None, rate: float, row: int, fail: Failer) -> 
     return tuple(out)
 
 
-def _check_unit(meta: Mapping[str, str], fail: Failer) -> None:
+def _check_unit(meta: Mapping[str, str], meta_row: Mapping[str, int], fail: Failer) -> None:
     unit = meta.get("u_unit", "V")
     if unit not in U_UNITS:
-        raise fail(2, f"u_unit {unit!r} is not one of {', '.join(U_UNITS)} (what the command u is)")
+        raise fail(
+            meta_row.get("u_unit", 2),
+            f"u_unit {unit!r} is not one of {', '.join(U_UNITS)} (what the command u is): fix the line",
+        )
     sampling = meta.get("u_sampling")
     if sampling is not None and sampling not in U_SAMPLING:
         raise fail(
-            2,
+            meta_row.get("u_sampling", 2),
             f"u_sampling {sampling!r} is not one of {', '.join(U_SAMPLING)} (u averaged over the "
             "interval up to its sample, or held from it on): fix it or delete the line",
         )
@@ -226,10 +264,17 @@ def _check_unit(meta: Mapping[str, str], fail: Failer) -> None:
         except ValueError:
             scale = math.nan
         if not (math.isfinite(scale) and scale > 0):
-            raise fail(2, "u_unit duty needs '# u_scale: <volts at full duty>' (a positive number)")
+            seen = f"got {meta['u_scale']!r}" if "u_scale" in meta else "the line is missing"
+            raise fail(
+                meta_row.get("u_scale", meta_row["u_unit"]),
+                f"u_unit duty needs '# u_scale: <volts at full duty>', a positive number ({seen})",
+            )
 
 
-def _parse_rows(lines: list[str], first: int, width: int, fail: Failer) -> np.ndarray:
+def _parse_rows(
+    lines: list[str], first: int, header: list[str], fail: Failer, ends_in_newline: bool = True
+) -> np.ndarray:
+    width = len(header)
     body = lines[first:]
     while body and not body[-1].strip():
         body.pop()
@@ -238,7 +283,7 @@ def _parse_rows(lines: list[str], first: int, width: int, fail: Failer) -> np.nd
     data = _parse_fast(body, width)
     if data is not None:
         return data
-    return _parse_slow(body, first, width, fail)
+    return _parse_slow(body, first, header, fail, ends_in_newline)
 
 
 def _parse_fast(body: list[str], width: int) -> np.ndarray | None:
@@ -255,24 +300,62 @@ def _parse_fast(body: list[str], width: int) -> np.ndarray | None:
     return data
 
 
-def _parse_slow(body: list[str], first: int, width: int, fail: Failer) -> np.ndarray:
+def _parse_slow(
+    body: list[str], first: int, header: list[str], fail: Failer, ends_in_newline: bool
+) -> np.ndarray:
+    width = len(header)
     data = np.empty((len(body), width))
     for k, line in enumerate(body):
+        row = first + k + 1
+        last = k == len(body) - 1 and not ends_in_newline
         parts = line.split(",")
+        if last and len(parts) <= width and not _numbers(parts):
+            raise fail(
+                row,
+                f"the last row {line[:80]!r} is cut short (no end of line, {len(parts)} of {width} "
+                "values or a number cut): the file was cut while being written; delete that row",
+            )
         if len(parts) != width:
-            raise fail(first + k + 1, f"{len(parts)} values, the header has {width} columns")
-        try:
-            data[k] = [float(p) for p in parts]
-        except ValueError:
-            raise fail(first + k + 1, f"not a number in {line[:80]!r}") from None
+            raise fail(row, _field_count(line, len(parts), header))
+        for j, p in enumerate(parts):
+            try:
+                data[k, j] = float(p)
+            except ValueError:
+                seen = "is empty" if not p.strip() else f"is {p.strip()[:30]!r}, not a number"
+                raise fail(row, f"{header[j]} {seen} in {line[:80]!r}: repair or delete the row") from None
         if not np.all(np.isfinite(data[k])):
-            raise fail(first + k + 1, f"NaN or infinite value in {line[:80]!r}; remove or repair the row")
+            raise fail(row, f"NaN or infinite value in {line[:80]!r}; remove or repair the row")
         if np.any(np.abs(data[k]) > HUGE):
             raise fail(
-                first + k + 1,
+                row,
                 f"value beyond ±{HUGE:g} in {line[:80]!r}: not a measurement (overflow, or a unit error)",
             )
     return data
+
+
+def _numbers(parts: list[str]) -> bool:
+    """Whether every field parses and the row is whole (the last row of a cut file is not)."""
+    try:
+        [float(p) for p in parts]
+    except ValueError:
+        return False
+    return True
+
+
+def _field_count(line: str, got: int, header: list[str]) -> str:
+    """A row with the wrong number of values: what it is likely to be, and the fix."""
+    names, width = ",".join(header), len(header)
+    if not line.strip():
+        return f"an empty line inside the data (the header {names} has {width} columns): delete it"
+    if line.lstrip().startswith("#"):
+        return f"a comment line {line[:60]!r} inside the data: comments go above the header; delete it"
+    if got > width and line.rstrip().endswith(","):
+        why = "a trailing comma"
+    elif got > width and "." not in line:
+        why = "decimal commas? the recording CSV uses '.' for decimals"
+    else:
+        why = "a cut or merged line"
+    return f"{got} values in {line[:80]!r}, the header {names} has {width} ({why}): repair or delete the row"
 
 
 def _check_time(t: np.ndarray, rate: float, first_row: int, fail: Failer) -> None:
