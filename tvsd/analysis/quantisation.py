@@ -35,6 +35,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy.signal import butter, filtfilt, freqz
 
+from tvsd.analysis.command_levels import without_levels
 from tvsd.analysis.count_grid import STEP_KEY, recorded_step
 from tvsd.analysis.prep import Prepared, _antialias
 
@@ -171,8 +172,10 @@ def gated(
     So each stretch of rows is ramped in and out (sin² over EDGE_TAPER_S: sidelobes ∝ 1/ν³,
     the leak from 50–100 Hz down by (ν·T)⁴ ≈ 600–10⁴), and the floor follows the ramped rows
     (their weights squared). Without a floor (a tachometer, tvsd's own speed: no f⁴ term) the
-    rows are passed as they were: main's path."""
-    resid = np.where(keep, residual, 0.0)
+    rows are not ramped. Either way, in open loop, what a constant per held command level
+    explains is taken out first (tvsd.analysis.command_levels: a PWM's per-level error)."""
+    # a static drive error per held command level (a PWM's resolution) is not the vibration's colour
+    resid = np.where(keep, without_levels(prep, keep, residual), 0.0)
     if count_step(prep) is None:
         return resid, None
     w = edge_taper(keep, rate_hz)
