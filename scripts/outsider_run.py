@@ -45,13 +45,14 @@ def run(a: argparse.Namespace) -> int:
     done = set()
     if a.out.exists():
         done = {json.loads(line)["name"] for line in a.out.read_text().splitlines() if line.strip()}
+    only = set(a.names.read_text().split()) if a.names else None
     cases = ob.plan(a.seed, a.reps, a.nulls, tuple(float(m) for m in a.sizes.split(",")))
     order = np.random.default_rng(a.seed).permutation(len(cases))  # a batch cut short is still a mix
     for k, (seed, cause, m) in enumerate(cases[i] for i in order):
         if k % a.workers != a.worker:
             continue
         s = ob.draw(seed, cause, m)
-        if s.name in done:
+        if s.name in done or (only is not None and s.name not in only):
             continue
         path = a.set / f"{s.name}.csv"
         if not path.exists():
@@ -82,6 +83,10 @@ def summary(a: argparse.Namespace) -> int:
         for line in Path(f).read_text().splitlines()
         if line.strip()
     ]
+    if a.override:  # rows re-run on a changed doctor replace the same cases' rows
+        newer = {json.loads(line)["name"]: json.loads(line) for f in sorted(glob.glob(a.override))
+                 for line in Path(f).read_text().splitlines() if line.strip()}  # fmt: skip
+        rows = [newer.get(r["name"], r) for r in rows]
     per: dict[tuple[str, float], list[bool]] = defaultdict(list)
     wrong: dict[str, Counter[str]] = defaultdict(Counter)
     nulls = [r for r in rows if r["spec"]["cause"] == "none"]
@@ -207,12 +212,14 @@ def main() -> int:
     r.add_argument("--nulls", type=int, default=36)
     r.add_argument("--worker", type=int, default=0)
     r.add_argument("--workers", type=int, default=1)
+    r.add_argument("--names", type=Path, default=None, help="a file of case names: run only these")
     r.add_argument("--sizes", default="2,6,20", help="effect sizes, comma-separated (the plan's m)")
     s = sub.add_parser("summary")
     s.add_argument("pattern")
     s.add_argument(
         "--split", action="store_true", help="nulls by sensor/unit/rate/loop; effects by what they show"
     )
+    s.add_argument("--override", default=None, help="rows (a glob) that replace the same cases' rows")
     s.add_argument("--set", type=Path, default=None, help="the recordings (the command for the exposure)")
     a = ap.parse_args()
     return run(a) if a.cmd == "run" else summary(a)

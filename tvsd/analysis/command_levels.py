@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from tvsd.analysis.gls import gls
 from tvsd.analysis.prep import Prepared
 
 MAX_LEVEL_DOF = 0.02  # at most this share of the rows' degrees of freedom go to the levels
@@ -34,15 +35,13 @@ def held_levels(u: np.ndarray) -> np.ndarray:
     return np.unique(u[1:][same])
 
 
-def level_columns(prep: Prepared) -> np.ndarray | None:
-    """Rows × K: one band-filtered indicator per held level, None when the command is not held on
-    levels (a multisine, closed loop) or holds more of them than MAX_LEVEL_DOF allows."""
-    data = prep.data
-    if "omega_ref" in data.refs:
+def usable_levels(u: np.ndarray, closed: bool, n_rows: int) -> np.ndarray | None:
+    """The held levels to project on, None when the command is not held on levels (a multisine,
+    closed loop) or holds more of them than MAX_LEVEL_DOF of `n_rows` allows."""
+    if closed:
         return None
-    u = np.asarray(data.u, dtype=float)
+    u = np.asarray(u, dtype=float)
     levels = held_levels(u)
-    n_rows = len(prep.t_rows)
     if len(levels) < 2 or len(levels) > MAX_LEVEL_DOF * n_rows:
         return None
     held = np.zeros(len(u), dtype=bool)
@@ -50,13 +49,38 @@ def level_columns(prep: Prepared) -> np.ndarray | None:
     held[:-1] |= held[1:]
     if held.mean() < 0.5:  # mostly a moving command with a few repeated values: no staircase
         return None
+    return levels
+
+
+def level_columns(prep: Prepared) -> np.ndarray | None:
+    """Rows × K: one band-filtered indicator per held level (usable_levels), or None."""
+    u = np.asarray(prep.data.u, dtype=float)
+    levels = usable_levels(u, "omega_ref" in prep.data.refs, len(prep.t_rows))
+    if levels is None:
+        return None
     return np.column_stack([prep.band_rows((u == v).astype(float)) for v in levels])
 
 
-def without_levels(prep: Prepared, keep: np.ndarray, residual: np.ndarray) -> np.ndarray:
-    """The residual rows less what a constant per held command level explains (over `keep`)."""
+def without_levels(
+    prep: Prepared,
+    keep: np.ndarray,
+    residual: np.ndarray,
+    X: np.ndarray | None = None,
+    ar: np.ndarray | None = None,
+) -> np.ndarray:
+    """The residual rows less what a constant per held command level explains (over `keep`).
+    With the model's columns `X` and its whitening `ar`: the residual of the model extended by the
+    levels, refitted as the doctor fits (GLS, whose residual is linear in y: the residual's own
+    GLS fit on [X, C] is the change) — the fit took a share of the levels' error into its
+    coefficients, and the speed's transient in each hold then leaves a low-pass of the mechanical
+    time constant that the levels alone do not take out (o12067: colour p 1e-7 → 1.0). An
+    unweighted refit on [X, C] is not that: its coefficients follow the encoder's quantisation
+    at the band's top and move the low end (o13049: colour p 0.15 → 6e-6)."""
     C = level_columns(prep)
     if C is None or not keep.any():
         return residual
+    if X is not None and ar is not None:
+        XC = np.column_stack([X, C])
+        return np.asarray(np.where(keep, residual - XC @ gls(residual, XC, ar, keep).theta, residual))
     coef, *_ = np.linalg.lstsq(C[keep], residual[keep], rcond=None)
     return np.asarray(np.where(keep, residual - C @ coef, residual))

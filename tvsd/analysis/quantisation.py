@@ -158,7 +158,11 @@ def edge_taper(keep: np.ndarray, rate_hz: float, seconds: float = EDGE_TAPER_S) 
 
 
 def gated(
-    prep: Prepared, keep: np.ndarray, residual: np.ndarray, rate_hz: float
+    prep: Prepared,
+    keep: np.ndarray,
+    residual: np.ndarray,
+    rate_hz: float,
+    model: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, Floor | None]:
     """The residual rows the spectral tests see, and the quantisation's floor in them.
 
@@ -173,9 +177,10 @@ def gated(
     the leak from 50–100 Hz down by (ν·T)⁴ ≈ 600–10⁴), and the floor follows the ramped rows
     (their weights squared). Without a floor (a tachometer, tvsd's own speed: no f⁴ term) the
     rows are not ramped. Either way, in open loop, what a constant per held command level
-    explains is taken out first (tvsd.analysis.command_levels: a PWM's per-level error)."""
+    explains is taken out first (tvsd.analysis.command_levels: a PWM's per-level error), refitted
+    with the model's columns and whitening, `model` = (X, ar), when given."""
     # a static drive error per held command level (a PWM's resolution) is not the vibration's colour
-    resid = np.where(keep, without_levels(prep, keep, residual), 0.0)
+    resid = np.where(keep, without_levels(prep, keep, residual, *(model or (None, None))), 0.0)
     if count_step(prep) is None:
         return resid, None
     w = edge_taper(keep, rate_hz)
