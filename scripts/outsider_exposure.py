@@ -34,20 +34,27 @@ from tvsd.analysis.linescan import RES_BAND
 from tvsd.analysis.prep import Band
 
 
-def scan_top_hz(fs: float, band: Band = Band()) -> float:
+def scan_top_hz(fs: float, band: Band | None = None) -> float:
     """The highest frequency the doctor's resonance line scan reaches at sample rate fs."""
+    band = band or Band()
     corner = min(band.cutoff_hz, 0.4 * fs)
     return RES_BAND * min(corner, fs / band.decim / 2)
 
 
-def exposure(s: ob.Spec) -> dict[str, float | str]:
-    n = int(s.seconds * s.fs)
-    u, _ = ob._command(s, np.random.default_rng([s.seed, 0x0B]), n)
-    u = u * s.drive["u_scale"]  # thresholds are in the drive's own unit (duty → V)
+def exposure(s: ob.Spec, u_rec: np.ndarray | None = None) -> dict[str, float | str]:
+    """What the command does to the case's effect; `u_rec` the recorded command (closed loop:
+    the loop's own output, which no replay gives), else the open-loop command replayed."""
+    if u_rec is None:
+        n = int(s.seconds * s.fs)
+        u_rec, _ = ob._command(s, np.random.default_rng([s.seed, 0x0B]), n)
+    u = u_rec * s.drive["u_scale"]  # thresholds are in the drive's own unit (duty → V)
     tr = s.truth
     if s.cause == "saturation":
         over = np.maximum(np.abs(u) - tr["u_max"], 0.0)
-        return {"acts_share": float(np.mean(over > 0)), "excess_rms_rel": float(np.sqrt(np.mean(over**2)) / u.std())}
+        return {
+            "acts_share": float(np.mean(over > 0)),
+            "excess_rms_rel": float(np.sqrt(np.mean(over**2)) / u.std()),
+        }
     if s.cause == "deadzone":
         inside = (np.abs(u) < tr["u0"]) & (u != 0)
         smallest = float(np.min(np.abs(u[u != 0]))) if np.any(u != 0) else math.nan
@@ -58,8 +65,23 @@ def exposure(s: ob.Spec) -> dict[str, float | str]:
         }
     if s.cause == "resonance":
         top = scan_top_hz(s.fs)
-        return {"acts_share": float(tr["frequency_hz"] <= top), "f_hz": tr["frequency_hz"], "scan_top_hz": top}
+        return {
+            "acts_share": float(tr["frequency_hz"] <= top),
+            "f_hz": tr["frequency_hz"],
+            "scan_top_hz": top,
+        }
     return {}
+
+
+def showable(s: ob.Spec, u_rec: np.ndarray | None = None) -> str:
+    """'no' when the recording cannot hold the effect (a clip never reached, a hard dead zone no
+    command enters, a mode above the line scan), 'marginal' when it acts on under 1 % of the
+    samples (the doctor's support for a threshold), else 'yes'."""
+    e = exposure(s, u_rec)
+    if not e or (s.cause == "deadzone" and e["kind"] == "shifted"):
+        return "yes"  # a shifted zone moves every command by u0
+    share = float(e["acts_share"])
+    return "no" if share == 0 else "marginal" if share < 0.01 else "yes"
 
 
 def main(argv: list[str] | None = None) -> int:

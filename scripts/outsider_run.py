@@ -20,12 +20,15 @@ import subprocess
 import sys
 import time
 from collections import Counter, defaultdict
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.stats import beta
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 import outsider_bench as ob
 
 TVSCTL = str(Path(sys.executable).parent / "tvsctl")
@@ -42,13 +45,14 @@ def run(a: argparse.Namespace) -> int:
     done = set()
     if a.out.exists():
         done = {json.loads(line)["name"] for line in a.out.read_text().splitlines() if line.strip()}
-    cases = ob.plan(a.seed, a.reps, a.nulls)
+    only = set(a.names.read_text().split()) if a.names else None
+    cases = ob.plan(a.seed, a.reps, a.nulls, tuple(float(m) for m in a.sizes.split(",")))
     order = np.random.default_rng(a.seed).permutation(len(cases))  # a batch cut short is still a mix
     for k, (seed, cause, m) in enumerate(cases[i] for i in order):
         if k % a.workers != a.worker:
             continue
         s = ob.draw(seed, cause, m)
-        if s.name in done:
+        if s.name in done or (only is not None and s.name not in only):
             continue
         path = a.set / f"{s.name}.csv"
         if not path.exists():
@@ -79,6 +83,10 @@ def summary(a: argparse.Namespace) -> int:
         for line in Path(f).read_text().splitlines()
         if line.strip()
     ]
+    if a.override:  # rows re-run on a changed doctor replace the same cases' rows
+        newer = {json.loads(line)["name"]: json.loads(line) for f in sorted(glob.glob(a.override))
+                 for line in Path(f).read_text().splitlines() if line.strip()}  # fmt: skip
+        rows = [newer.get(r["name"], r) for r in rows]
     per: dict[tuple[str, float], list[bool]] = defaultdict(list)
     wrong: dict[str, Counter[str]] = defaultdict(Counter)
     nulls = [r for r in rows if r["spec"]["cause"] == "none"]
@@ -111,11 +119,86 @@ def summary(a: argparse.Namespace) -> int:
         for r in rows:
             g2[r["spec"][key]].append(r["cause"] == r["spec"]["cause"])
         print(f"by {key}: " + ", ".join(f"{k}: {sum(v)}/{len(v)}" for k, v in sorted(g2.items())))
+    if a.split:
+        split(rows, a.set)
     for key in ("wall_s", "cpu_s"):
         v = sorted(r[key] for r in rows if key in r)
         if v:
             print(f"{key} per file: median {v[len(v) // 2]:.1f} s, max {v[-1]:.1f} s, n={len(v)}")
     return 0
+
+
+def _sensor(spec: dict[str, Any]) -> str:
+    return "encoder diff" if spec["sensor"]["omega"] == "diff" else "tach"
+
+
+def _loop(spec: dict[str, Any]) -> str:
+    return "closed" if spec["excitation"] == "closed" else "open"
+
+
+def split(rows: list[dict[str, Any]], set_dir: Path | None) -> None:
+    """The nulls' false alarms by sensor, unit, rate and loop (each with its 95 % CP interval),
+    and the effects per cause and size with the cases the recording cannot show counted apart
+    (scripts/outsider_exposure.py; closed loop from the recorded command, so `--set` is needed)."""
+    import outsider_exposure as ox
+
+    nulls = [r for r in rows if r["spec"]["cause"] == "none"]
+    keys: dict[str, Callable[[dict[str, Any]], Any]] = {
+        "sensor": _sensor, "unit": lambda s: s["unit"], "fs": lambda s: f"{s['fs']:g} Hz", "loop": _loop,
+    }  # fmt: skip
+    print("\n| nulls by | group | false alarms | 95 % CP | named |\n|---|---|---|---|---|")
+    for key, f in keys.items():
+        groups: dict[Any, list[dict[str, Any]]] = defaultdict(list)
+        for r in nulls:
+            groups[f(r["spec"])].append(r)
+        for g, rs in sorted(groups.items()):
+            fa = [r for r in rs if r["cause"] != "none"]
+            lo, hi = cp95(len(fa), len(rs))
+            named = ", ".join(f"{k} {v}" for k, v in Counter(r["cause"] for r in fa).most_common())
+            print(f"| {key} | {g} | {len(fa)}/{len(rs)} | {100 * lo:.1f}–{100 * hi:.1f} % | {named} |")
+    cells: dict[tuple[str, float], dict[str, list[bool]]] = defaultdict(lambda: defaultdict(list))
+    instead: dict[str, Counter[str]] = defaultdict(Counter)
+    for r in rows:
+        sp = r["spec"]
+        if sp["cause"] == "none":
+            continue
+        s = ob.draw(sp["seed"], sp["cause"], sp["size"])
+        u = None
+        if set_dir is not None and (set_dir / f"{s.name}.csv").exists():
+            csv = set_dir / f"{s.name}.csv"
+            u = np.loadtxt(csv, delimiter=",", skiprows=_header_lines(csv), usecols=1)
+        elif sp["excitation"] == "closed" and sp["cause"] in ("saturation", "deadzone"):
+            continue  # a closed loop's command is not replayable
+        show = ox.showable(s, u)
+        cells[(sp["cause"], sp["size"])][show].append(r["cause"] == sp["cause"])
+        if r["cause"] != sp["cause"] and show == "yes":
+            instead[sp["cause"]][r["cause"]] += 1
+    sizes = sorted({m for _, m in cells})
+    print("\nnamed / cases the recording can show (+ marginal: < 1 % of samples; not showable: named/n)\n")
+    print("| cause | " + " | ".join(f"{m:g}×" for m in sizes) + " | named instead (showable) |")
+    print("|---|" + "---|" * (len(sizes) + 1))
+    for c in ob.CAUSES:
+        out = []
+        for m in sizes:
+            d = cells[(c, m)]
+            txt = f"{sum(d['yes'])}/{len(d['yes'])}"
+            if d["marginal"]:
+                txt += f" (+marg. {sum(d['marginal'])}/{len(d['marginal'])})"
+            if d["no"]:
+                txt += f" (not showable {sum(d['no'])}/{len(d['no'])})"
+            out.append(txt)
+        print(
+            f"| {c} | "
+            + " | ".join(out)
+            + " | "
+            + ", ".join(f"{k} {v}" for k, v in instead[c].most_common())
+            + " |"
+        )
+
+
+def _header_lines(path: Path) -> int:
+    with path.open() as fh:
+        return next(i for i, line in enumerate(fh) if not line.startswith("#")) + 1
 
 
 def main() -> int:
@@ -129,8 +212,15 @@ def main() -> int:
     r.add_argument("--nulls", type=int, default=36)
     r.add_argument("--worker", type=int, default=0)
     r.add_argument("--workers", type=int, default=1)
+    r.add_argument("--names", type=Path, default=None, help="a file of case names: run only these")
+    r.add_argument("--sizes", default="2,6,20", help="effect sizes, comma-separated (the plan's m)")
     s = sub.add_parser("summary")
     s.add_argument("pattern")
+    s.add_argument(
+        "--split", action="store_true", help="nulls by sensor/unit/rate/loop; effects by what they show"
+    )
+    s.add_argument("--override", default=None, help="rows (a glob) that replace the same cases' rows")
+    s.add_argument("--set", type=Path, default=None, help="the recordings (the command for the exposure)")
     a = ap.parse_args()
     return run(a) if a.cmd == "run" else summary(a)
 

@@ -97,6 +97,19 @@ def test_a_few_counts_per_sample_null_is_none(tmp_path: Path, seed: int) -> None
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("seed", [12067, 13033])
+def test_a_pwm_staircase_or_undeclared_encoder_null_is_none(tmp_path: Path, seed: int) -> None:
+    """Two fresh nulls of the outsider batch (docs/measurements/outsider2.md), drawn as they were,
+    both `colored_noise` on integ3: o12067 (duty staircase through an 8-bit PWM bridge: a constant
+    error per held level, tvsd.analysis.command_levels) and o13033 (an undeclared 8192-count
+    encoder whose printed ω's grid was not read: no quantisation floor, count_grid.read_step)."""
+    s = ob.draw(seed, "none", 0.0)
+    path = tmp_path / f"{s.name}.csv"
+    ob.write(path, s, ob.make(s))
+    assert _analyze(path)["cause"] == "none"
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["null-encoder-500hz", "delay-encoder-500hz"])
 def test_stored_outsider_recording(tmp_path: Path, name: str) -> None:
     """Two stored outsider recordings (500 Hz, speed = the encoder's backward difference, one of

@@ -130,3 +130,20 @@ def test_without_a_count_difference_the_rows_pass_as_they_were() -> None:
     seen, floor = Q.gated(prep, keep, resid, 250.0)
     assert floor is None
     assert np.array_equal(seen, np.where(keep, resid, 0.0))
+
+
+def test_an_undeclared_encoders_printed_speed_is_on_its_grid() -> None:
+    """An 8192-count encoder's difference at 1 kHz up to ~110 rad/s (143 counts per sample),
+    printed as the CSV prints it (7 significant digits): the smallest gap of two printed levels is
+    off by up to 5e-5 rad/s, which at the 143rd count is 0.009 of a step, past the grid's 1e-3
+    tolerance. The step is read from every level (the outsider's undeclared-encoder nulls o13033,
+    o13072 had no floor and were `colored_noise`); the CSV's rounding bounds the error at 1e-6."""
+    fs, counts = 1000.0, 8192
+    q = 2 * math.pi / counts
+    t = np.arange(30000) / fs
+    phi = np.cumsum(60.0 + 50.0 * np.sin(2 * np.pi * 0.3 * t)) / fs
+    w = np.diff(np.concatenate([[0.0], np.floor(phi / q)])) * q * fs
+    printed = np.array([float(f"{x:.7g}") for x in w])
+    step = count_grid.speed_step(printed, fs, None)
+    assert step is not None
+    assert math.isclose(step, q * fs, rel_tol=1e-6)

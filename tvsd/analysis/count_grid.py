@@ -17,6 +17,7 @@ GRID_TOL = 1e-3  # |ω/s − round(ω/s)| below this is on the grid (the CSV's 7
 GRID_SHARE = 0.99  # share of the samples that must be on it
 MIN_LEVELS = 3  # a grid needs at least this many distinct count levels to be read from the data
 
+
 def on_grid(omega: np.ndarray, step: float) -> bool:
     """Whether the speed is a whole number of steps in (almost) every sample."""
     if not (math.isfinite(step) and step > 0):
@@ -35,7 +36,14 @@ def read_step(omega: np.ndarray) -> float | None:
     gaps = gaps[gaps > 1e-5 * max(float(levels[-1]), 1e-12)]
     if len(gaps) + 1 < MIN_LEVELS:
         return None
-    step = float(np.min(gaps))
+    # The smallest gap is the step only to the CSV's printing: 7 significant digits leave a level
+    # near 100 rad/s with 5 decimals, one near 1 with 7, so a gap of two printed levels is off by
+    # up to 5e-5 — 0.005 of a step at the 100th count, past GRID_TOL (an undeclared 8192-count
+    # encoder's ω, 0.76699 rad/s steps, read as 0.76695 and missed: no floor, `colored_noise`).
+    # The whole number of steps of each level is exact, so the step is their least-squares fit.
+    rough = float(np.min(gaps))
+    k = np.round(levels / rough)
+    step = float(levels @ k / (k @ k)) if k @ k > 0 else rough
     return step if on_grid(omega, step) else None
 
 

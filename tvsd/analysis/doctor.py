@@ -179,7 +179,8 @@ def _diagnose(
     # An encoder-difference speed's quantisation: a known floor in both spectral shapes, and the
     # rows ramped in and out at the gaps (a hard edge leaks its f⁴ power into the lowest bins).
     resid = instrument.residual(measured, design, verdict)
-    resid, floor = quantisation.gated(prep, out.keep, resid, rate_rows)
+    model = (verdict.X, out.ar) if design is measured else None  # the levels refitted with the model
+    resid, floor = quantisation.gated(prep, out.keep, resid, rate_rows, model)
     noise = analyse(resid, rate_rows, params["J"] if params["J"] > 0 else 1.0, prep.band.cutoff_hz, floor)
     ranked = verdict.ranked
     cause, effect = verdict.cause, verdict.effect

@@ -35,6 +35,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy.signal import butter, filtfilt, freqz
 
+from tvsd.analysis.command_levels import without_levels
 from tvsd.analysis.count_grid import STEP_KEY, recorded_step
 from tvsd.analysis.prep import Prepared, _antialias
 
@@ -157,7 +158,11 @@ def edge_taper(keep: np.ndarray, rate_hz: float, seconds: float = EDGE_TAPER_S) 
 
 
 def gated(
-    prep: Prepared, keep: np.ndarray, residual: np.ndarray, rate_hz: float
+    prep: Prepared,
+    keep: np.ndarray,
+    residual: np.ndarray,
+    rate_hz: float,
+    model: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, Floor | None]:
     """The residual rows the spectral tests see, and the quantisation's floor in them.
 
@@ -171,8 +176,11 @@ def gated(
     So each stretch of rows is ramped in and out (sin² over EDGE_TAPER_S: sidelobes ∝ 1/ν³,
     the leak from 50–100 Hz down by (ν·T)⁴ ≈ 600–10⁴), and the floor follows the ramped rows
     (their weights squared). Without a floor (a tachometer, tvsd's own speed: no f⁴ term) the
-    rows are passed as they were: main's path."""
-    resid = np.where(keep, residual, 0.0)
+    rows are not ramped. Either way, in open loop, what a constant per held command level
+    explains is taken out first (tvsd.analysis.command_levels: a PWM's per-level error), refitted
+    with the model's columns and whitening, `model` = (X, ar), when given."""
+    # a static drive error per held command level (a PWM's resolution) is not the vibration's colour
+    resid = np.where(keep, without_levels(prep, keep, residual, *(model or (None, None))), 0.0)
     if count_step(prep) is None:
         return resid, None
     w = edge_taper(keep, rate_hz)
