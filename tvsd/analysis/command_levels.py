@@ -29,8 +29,9 @@ from tvsd.analysis.prep import Prepared
 MAX_LEVEL_DOF = 0.02  # at most this share of the rows' degrees of freedom go to the levels
 # and at most this many levels: the refit holds rows × (columns + K) in a few copies, and the
 # share alone let a 10-min staircase of 0.3 s holds bring 2000 columns (≈ 10 GB; 4 min took 76 s,
-# 1.6 GB), past the rows × ~140 columns memory.check budgets. The outsider bench's staircases
-# (≤ 120 s, holds ≥ 0.8 s, a PRBS doubling the levels) hold ~150.
+# 1.6 GB), past the rows × ~140 columns memory.check budgets; 256 levels over 10 min take 53 s,
+# 1.35 GB (docs/measurements/review4.md). The outsider bench's staircases (≤ 120 s, holds
+# ≥ 0.8 s, a PRBS doubling the levels) hold ~150.
 MAX_LEVELS = 256
 
 
