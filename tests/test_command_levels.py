@@ -80,3 +80,20 @@ def test_in_closed_loop_nothing_is_projected() -> None:
     prep, resid, rate = _case(g, pwm=True, closed=True)
     keep = np.ones(len(resid), dtype=bool)
     assert np.array_equal(Q.gated(prep, keep, resid, rate)[0], resid)
+
+
+def test_levels_are_capped_in_number_not_only_in_share() -> None:
+    """A long staircase of distinct levels (10 min at 1 kHz, holds of 0.3 s: 2000 levels in
+    150 000 rows, within MAX_LEVEL_DOF's share) made a rows × 2000 matrix refitted by least
+    squares: 4 min took 76 s and 1.6 GB, 10 min ≈ 10 GB, past what memory.check budgets. Past
+    MAX_LEVELS nothing is projected, as past the share."""
+    from tvsd.analysis import command_levels as CL
+
+    g = np.random.default_rng(15)
+    n, hold = 600_000, 300
+    u = np.repeat(g.uniform(-3.5, 3.5, n // hold), hold)
+    rows = n // 4
+    assert len(CL.held_levels(u)) <= CL.MAX_LEVEL_DOF * rows  # the share alone would allow them
+    assert CL.usable_levels(u, closed=False, n_rows=rows) is None
+    few = np.repeat(g.uniform(-3.5, 3.5, 40), n // 40)  # a staircase of 40 levels is still projected
+    assert CL.usable_levels(few, closed=False, n_rows=rows) is not None

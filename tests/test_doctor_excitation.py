@@ -254,3 +254,17 @@ def test_a_swinging_shaft_whose_tach_has_an_offset_is_not_refused(tmp_path, coun
     t = np.arange(20 * FS) / FS
     prep = _tach_file(tmp_path / "swing.csv", np.where((t % 1) < 0.5, 5.0, -5.0), 2.0, counts, seed=12)
     X.check_moving(prep, 8)
+
+
+@pytest.mark.parametrize("counts", [65536, None])
+def test_a_tach_drive_that_rests_most_of_the_record_is_not_refused(tmp_path, counts):
+    """The shaft swings (20 rad/s at 0.5 Hz) for the first 40 % and rests for the rest, the tach
+    without offset. At rest the tach's white noise integrates to a random walk (range ≈ SIGMA/FS·
+    √L ≈ 2e-3 rad over a stretch of L = 3000 samples) that passed a fine angle's reach (≈ 4e-4
+    rad): 12 resting stretches counted as 'the speed says it turned' and the file was refused as
+    a tach offset (before). The walk is part of what the speed's integral may do at rest."""
+    n = 60 * FS
+    t = np.arange(n) / FS
+    speed = np.where(t < 24.0, 20 * np.sin(2 * np.pi * 0.5 * t), 0.0)
+    prep = _tach_file(tmp_path / "rests.csv", speed, 0.0, counts, seed=7)
+    X.check_moving(prep, 8)

@@ -27,6 +27,12 @@ from tvsd.analysis.gls import gls
 from tvsd.analysis.prep import Prepared
 
 MAX_LEVEL_DOF = 0.02  # at most this share of the rows' degrees of freedom go to the levels
+# and at most this many levels: the refit holds rows × (columns + K) in a few copies, and the
+# share alone let a 10-min staircase of 0.3 s holds bring 2000 columns (≈ 10 GB; 4 min took 76 s,
+# 1.6 GB), past the rows × ~140 columns memory.check budgets; 256 levels over 10 min take 53 s,
+# 1.35 GB (docs/measurements/review4.md). The outsider bench's staircases (≤ 120 s, holds
+# ≥ 0.8 s, a PRBS doubling the levels) hold ~150.
+MAX_LEVELS = 256
 
 
 def held_levels(u: np.ndarray) -> np.ndarray:
@@ -37,12 +43,12 @@ def held_levels(u: np.ndarray) -> np.ndarray:
 
 def usable_levels(u: np.ndarray, closed: bool, n_rows: int) -> np.ndarray | None:
     """The held levels to project on, None when the command is not held on levels (a multisine,
-    closed loop) or holds more of them than MAX_LEVEL_DOF of `n_rows` allows."""
+    closed loop) or holds more of them than MAX_LEVEL_DOF of `n_rows` or MAX_LEVELS allows."""
     if closed:
         return None
     u = np.asarray(u, dtype=float)
     levels = held_levels(u)
-    if len(levels) < 2 or len(levels) > MAX_LEVEL_DOF * n_rows:
+    if len(levels) < 2 or len(levels) > min(MAX_LEVEL_DOF * n_rows, MAX_LEVELS):
         return None
     held = np.zeros(len(u), dtype=bool)
     held[1:] = u[1:] == u[:-1]

@@ -121,23 +121,27 @@ def angle_noise(d: Dataset) -> float:
     return max(mad, 0.0 if q is None else q / np.sqrt(12.0))
 
 
-def angle_agrees(d: Dataset) -> tuple[int, int, float]:
+def angle_agrees(d: Dataset, speed_sigma: float = 0.0) -> tuple[int, int, float]:
     """(stretches in which the speed says the shaft turned farther than the angle's noise can
     reach, those of them in which the angle did, that reach in the angle's units), over
     ANGLE_STRETCHES stretches of the record. Each compares ranges (max − min) within the stretch,
     of the speed's integral and of φ: net travel would cancel over a whole period of an
     oscillation (a 1 Hz square wave in 1 s stretches), and an offset speed would then disagree
     with a shaft that swings. The reach is the range L white samples of σ span (≈ 2·√(2 ln L)·σ)
-    plus CLEAR·σ; long stretches let a slow shaft's angle climb out of a coarse encoder's count."""
+    plus CLEAR·σ; long stretches let a slow shaft's angle climb out of a coarse encoder's count.
+    The speed's own white noise (σ `speed_sigma`, a tachometer's) integrates to a random walk
+    whose range over L samples exceeds 2·CLEAR·σ·√L/fs with probability ≤ 4Φ(−CLEAR) ≈ 1e-6
+    (reflection principle): a resting stretch's walk is not a claim that the shaft turned."""
     assert d.speed is not None
     n = len(d.t)
     edges = np.linspace(0, n, ANGLE_STRETCHES + 1).astype(int)
     travelled = np.concatenate([[0.0], np.cumsum(0.5 * (d.speed[1:] + d.speed[:-1]) * np.diff(d.t))])
     length = max(int(np.min(np.diff(edges))), 2)
     reach = (2.0 * np.sqrt(2.0 * np.log(length)) + CLEAR) * angle_noise(d)
+    walk = 2.0 * CLEAR * speed_sigma * np.sqrt(length) / d.sample_rate_hz
     claimed = np.array([np.ptp(travelled[i:j]) for i, j in itertools.pairwise(edges)])
     seen = np.array([np.ptp(d.position[i:j]) for i, j in itertools.pairwise(edges)])
-    visible = claimed > reach
+    visible = claimed > reach + walk
     return int(visible.sum()), int(np.count_nonzero(visible & (seen > reach))), float(reach)
 
 
@@ -148,7 +152,9 @@ def check_moving(prep: Prepared, columns: int) -> None:
     moving, rows, sigma = moving_rows(prep)
     need = ROWS_PER_COLUMN * columns
     if moving >= need and d.speed is not None and d.position_measured:
-        claimed, agreed, clear = angle_agrees(d)
+        # a tachometer's white noise integrates to a walk; a count difference's to an angle error
+        tach = noise_taps(prep).tolist() == [1.0]
+        claimed, agreed, clear = angle_agrees(d, speed_noise(prep) if tach else 0.0)
         if 2 * agreed < claimed:
             raise DataFileError(
                 f"{d.path or d.name}: no excitation: the speed column stands clear of its noise in "
