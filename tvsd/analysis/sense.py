@@ -88,8 +88,8 @@ def baseline_problem(p: dict[str, float], se: dict[str, float]) -> str | None:
         return f"the command barely moves the shaft ({seen}): no excitation reached the speed"
     if not p["input_gain"] > 0:
         return (
-            f"the command decelerates the shaft (input gain {p['input_gain']:.3g} ± "
-            f"{se.get('input_gain', 0.0):.2g}, below zero by more than 3 standard errors): "
+            f"the command does not accelerate the shaft (input gain {p['input_gain']:.3g} ± "
+            f"{se.get('input_gain', 0.0):.2g}, not above zero and at least 3 standard errors from it): "
             "wrong sign or unit of u, or the speed is not this motor's"
         )
     if not p["J"] > 0:
