@@ -56,17 +56,41 @@ def check_recording(d: Dataset) -> None:
         )
 
 
+def unexcited(p: dict[str, float], se: dict[str, float]) -> str | None:
+    """What was seen when the fitted input gain is not distinguishable from zero (|gain| < 3 se,
+    either sign), or None. The command then did not reach the speed: the drive held in its
+    friction and the shaft moved, if at all, by something else (a vibration). Its sign says
+    nothing about u's (docs/measurements/gainzero.md: null 810395, gain −0.0678, stall torque
+    0.98 τc at the command's peak). A NaN gain or error is not judged here (baseline_problem)."""
+    g, e = p["input_gain"], se.get("input_gain", 0.0)
+    if abs(g) < 3 * e:
+        return f"the fitted input gain {g:.3g} ± {e:.2g} is within 3 standard errors of zero"
+    return None
+
+
+def check_excited(p: dict[str, float], se: dict[str, float], where: str) -> None:
+    """DataFileError (exit 2) when the command did not reach the speed (unexcited)."""
+    seen = unexcited(p, se)
+    if seen is not None:
+        raise DataFileError(
+            f"{where}: no excitation: {seen}, so the command did not move the drive (the shaft "
+            "moved, if at all, by something else); record a command that moves it past its "
+            "friction (larger steps or a multisine, or `tvsctl identify`)"
+        )
+
+
 def baseline_problem(p: dict[str, float], se: dict[str, float]) -> str | None:
-    """Why the baseline's parameters are not a physical drive, or None."""
+    """Why the baseline's parameters are not a physical drive, or None. A gain within 3 se of
+    zero is no excitation, refused before this (check_excited); a caller that does not refuse
+    gets it as a reason."""
+    seen = unexcited(p, se)
+    if seen is not None:
+        return f"the command barely moves the shaft ({seen}): no excitation reached the speed"
     if not p["input_gain"] > 0:
         return (
-            f"the command does not accelerate the shaft (input gain {p['input_gain']:.3g} ≤ 0): "
+            f"the command does not accelerate the shaft (input gain {p['input_gain']:.3g} ± "
+            f"{se.get('input_gain', 0.0):.2g}, not above zero and at least 3 standard errors from it): "
             "wrong sign or unit of u, or the speed is not this motor's"
-        )
-    if not p["input_gain"] > 3 * se.get("input_gain", 0.0):
-        return (
-            f"the command barely moves the shaft (input gain {p['input_gain']:.3g} ± "
-            f"{se.get('input_gain', 0.0):.2g}): no excitation reached the speed, or u is not this drive's"
         )
     if not p["J"] > 0:
         return f"the fitted inertia is not positive (J = {p['J']:.3g})"

@@ -197,6 +197,8 @@ def name_cause(
         fin = gls(design.y, X_rigid, out.ar, out.keep)
         params, err = physical(design, fin.theta[:b], fin.cov[:b, :b], data.b_u, data.b_omega)
     judged = err if friction_judged else {**err, "damping": math.inf, "tau_c": math.inf}
+    if drive_identifiable:  # a gain within 3 se of zero: the command did not move the drive (exit 2)
+        sense.check_excited(params, judged, str(data.path or data.name))
     reason = sense.baseline_problem(params, judged) if drive_identifiable else None
     if chosen is not None and reason is None:
         problem = sense.effect_problem(cause, effect_out, u, params["time_constant_s"], data.sample_rate_hz)
