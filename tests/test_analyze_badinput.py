@@ -117,6 +117,24 @@ def test_a_last_row_cut_while_writing_says_so(tmp_path: Path) -> None:
         csvfile.read(path)
 
 
+@pytest.mark.parametrize(
+    "last,needle",
+    [
+        ("2.999,5.0,fast", r"row 3004: omega is 'fast', not a number in '2.999,5.0,fast'"),
+        ("2.999,slow,1.0", r"row 3004: u is 'slow', not a number"),
+        ("2.999,5.0,1.5e", r"row 3004: the last row .* is cut short"),
+        ("2.999,5.0,-", r"row 3004: the last row .* is cut short"),
+    ],
+)
+def test_a_whole_last_row_with_a_word_is_a_non_number_not_cut(tmp_path: Path, last: str, needle: str) -> None:
+    """Before: a complete last row with no end of line and a word in it was "cut short"; every
+    field is there, so it is the non-number it is (its column named). A last field that is the
+    start of a number ('1.5e', '-') is still a number cut while written (review4.md)."""
+    lines = _lines(tmp_path)
+    with pytest.raises(DataFileError, match=needle):
+        csvfile.read(_write(tmp_path, [*lines[:-1], last], end=""))
+
+
 @pytest.mark.parametrize("text,value", [("-1e3", -1000.0), ("-2.5E-1", -0.25), ("-5", -5.0)])
 def test_a_negative_bound_in_any_float_form_is_a_value(text: str, value: float) -> None:
     """argparse took `-1e3` for an option: "argument --start: expected one argument", exit 2 on

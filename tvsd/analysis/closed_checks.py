@@ -6,7 +6,9 @@ note that a constant reference leaves the command maps untestable (`closed_loop_
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -15,13 +17,34 @@ from tvsd.analysis import absorber, instrument, quantisation
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis.dataset import Dataset
+from tvsd.analysis.gls import gls
 from tvsd.analysis.noise import COLOUR_P, NoiseReport, analyse, spectral_cause
 from tvsd.analysis.rules import DEFAULT, Rules
+
+# The least-squares effect in the instrumented block's standard errors below which the
+# confirmation cannot tell that effect from none: inside the instrumented estimate's 95 % interval
+# around zero (two-sided normal quantile). The decision's gate (z ~3.8, a standardised likelihood
+# ratio: a Wald statistic of ~3) is higher, so every refusal this calls powerless is one.
+NO_POWER = 1.96
+
+
+@dataclass
+class Confirmation:
+    """The instrumented confirmation: `holds(cause)` whether the cause passes the decision on the
+    instrumented design; `power(cause, option, coef)` the least-squares block's coefficients
+    `coef` in the instrumented block's standard errors (a Wald statistic, √(cᵀ V⁻¹ c)): what the
+    confirmation could show of the effect least squares found (docs/measurements/closeddrift.md)."""
+
+    holds: Callable[[str], bool]
+    power: Callable[[str, D.Option, np.ndarray], float]
+
+    def __call__(self, cause: str) -> bool:
+        return self.holds(cause)
 
 
 def instrumented_check(
     prep: Any, data: Dataset, rotary: bool, measured: D.Design, seed: int, rules: Rules = DEFAULT
-) -> Callable[[str], bool] | None:
+) -> Confirmation | None:
     """Closed loop by least squares, with an excited reference: whether a command-side cause
     also passes the decision on the instrumented design (tvsd.analysis.instrument: every
     command and speed column from the reference's and identify's PRBS prediction, the left side
@@ -35,9 +58,9 @@ def instrumented_check(
     matrix's closed-loop clips and delays stay far above the gate: 293 and 83–1406)."""
     if not instrument.excited(data):
         return None
-    memo: dict[tuple[bool, bool, bool], C.Outcome] = {}
+    memo: dict[tuple[bool, bool, bool], tuple[D.Design, C.Outcome]] = {}
 
-    def holds(cause: str) -> bool:
+    def decided(cause: str) -> tuple[D.Design, C.Outcome]:
         # Per cause (rules.identified_for, expected_for; docs/measurements/closedsat.md): the
         # clip's block as E[f(u) | instruments], θ_IV along identified directions only.
         key = (
@@ -53,11 +76,30 @@ def instrumented_check(
             iv = absorber.absorb(iv)
             iv.back_emf = measured.back_emf
             iv.y = instrument.structural_left_side(iv, measured, identified_only=ident)
-            memo[key] = C.test_all(iv, seed=seed)
-        out = memo[key]
+            memo[key] = (iv, C.test_all(iv, seed=seed))
+        return memo[key]
+
+    def holds(cause: str) -> bool:
+        out = decided(cause)[1]
         return any(t.cause == cause and t.z > out.threshold for t in out.tested)
 
-    return holds
+    def power(cause: str, option: D.Option, coef: np.ndarray) -> float:
+        iv, out = decided(cause)
+        same = [o for o in iv.options.get(cause, []) if o.effect == option.effect]
+        if not same or len(coef) != same[0].block.shape[1]:
+            return math.inf  # nothing to compare: not called powerless
+        k = same[0].block.shape[1]
+        fit = gls(iv.y, np.column_stack([iv.X, same[0].block]), out.ar, out.keep)
+        cov = fit.cov[-k:, -k:]
+        c = np.asarray(coef, dtype=float)
+        if not np.all(np.isfinite(cov)):
+            return math.inf
+        try:
+            return math.sqrt(max(float(c @ np.linalg.solve(cov, c)), 0.0))
+        except np.linalg.LinAlgError:
+            return math.inf
+
+    return Confirmation(holds, power)
 
 
 LOOP_PEAK = (

@@ -16,6 +16,7 @@ For numpy users: ``numpy.genfromtxt(path, delimiter=",", names=True, comments="#
 from __future__ import annotations
 
 import math
+import re
 import stat
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
@@ -309,7 +310,7 @@ def _parse_slow(
         row = first + k + 1
         last = k == len(body) - 1 and not ends_in_newline
         parts = line.split(",")
-        if last and len(parts) <= width and not _numbers(parts):
+        if last and len(parts) <= width and _cut(parts, width):
             raise fail(
                 row,
                 f"the last row {line[:80]!r} is cut short (no end of line, {len(parts)} of {width} "
@@ -333,10 +334,23 @@ def _parse_slow(
     return data
 
 
-def _numbers(parts: list[str]) -> bool:
-    """Whether every field parses and the row is whole (the last row of a cut file is not)."""
+# What a number cut while it was written can end as: a sign, digits, a point, an exponent's start.
+_NUMBER_PREFIX = re.compile(r"\s*[+-]?(\d+\.?\d*|\.\d*)?([eE][+-]?\d*)?\s*")
+
+
+def _cut(parts: list[str], width: int) -> bool:
+    """Whether a last row with no end of line was cut while written: fields missing, or only its
+    last field bad and that field the start of a number ('1.5e', '-', ''). A whole row with a
+    word in it is a non-number, reported as such with its column (the row-by-row check)."""
+    bad = [j for j, p in enumerate(parts) if not _parses(p)]
+    if len(parts) < width:
+        return bool(bad)
+    return bad == [width - 1] and _NUMBER_PREFIX.fullmatch(parts[-1]) is not None
+
+
+def _parses(p: str) -> bool:
     try:
-        [float(p) for p in parts]
+        float(p)
     except ValueError:
         return False
     return True
