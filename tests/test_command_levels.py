@@ -86,7 +86,8 @@ def test_levels_are_capped_in_number_not_only_in_share() -> None:
     """A long staircase of distinct levels (10 min at 1 kHz, holds of 0.3 s: 2000 levels in
     150 000 rows, within MAX_LEVEL_DOF's share) made a rows × 2000 matrix refitted by least
     squares: 4 min took 76 s and 1.6 GB, 10 min ≈ 10 GB, past what memory.check budgets. Past
-    MAX_LEVELS nothing is projected, as past the share."""
+    MAX_LEVELS nothing is projected, as past the share. Since the refit is piecewise (linear in
+    the rows, O(K³) in the levels) 1000 levels are projected (256 was the dense refit's cap)."""
     from tvsd.analysis import command_levels as CL
 
     g = np.random.default_rng(15)
@@ -97,3 +98,53 @@ def test_levels_are_capped_in_number_not_only_in_share() -> None:
     assert CL.usable_levels(u, closed=False, n_rows=rows) is None
     few = np.repeat(g.uniform(-3.5, 3.5, 40), n // 40)  # a staircase of 40 levels is still projected
     assert CL.usable_levels(few, closed=False, n_rows=rows) is not None
+    many = np.repeat(g.uniform(-3.5, 3.5, 1000), n // 1000)
+    assert CL.usable_levels(many, closed=False, n_rows=rows) is not None
+
+
+def _dense_reference(prep, keep, residual, X, ar):  # type: ignore[no-untyped-def]
+    """The projection as it was first written (integ3): dense indicator columns, GLS on [X, C]."""
+    from tvsd.analysis.command_levels import usable_levels
+    from tvsd.analysis.gls import gls
+
+    u = np.asarray(prep.data.u, dtype=float)
+    levels = usable_levels(u, False, len(residual))
+    assert levels is not None
+    C = np.column_stack([prep.band_rows((u == v).astype(float)) for v in levels])
+    if X is None:
+        coef, *_ = np.linalg.lstsq(C[keep], residual[keep], rcond=None)
+        return np.where(keep, residual - C @ coef, residual)
+    XC = np.column_stack([X, C])
+    return np.where(keep, residual - XC @ gls(residual, XC, ar, keep).theta, residual)
+
+
+def test_the_piecewise_projection_is_the_dense_one() -> None:
+    """Seeded staircases (distinct levels; 20 levels repeated; with gaps in `keep`), refitted
+    with a model whose constant column the levels' indicators nearly sum to: the piecewise
+    normal equations give the dense GLS's residual. Tolerance: the normal equations square the
+    design's condition number (≈ 1e4 here, the constant against the levels' sum, which differ
+    only at the rows' ends), so they agree to eps·κ² ≈ 2e-8 of the change; without that
+    near-collinearity (the unweighted projection) to eps·κ·√rows ≈ 1e-10."""
+    from tvsd.analysis.command_levels import without_levels
+
+    for seed, hold, repeat in [(0, 0.3, False), (1, 1.0, True), (2, 2.0, False), (3, 0.5, True)]:
+        g = np.random.default_rng(seed)
+        n = int(60 * FS)
+        k = int(n / (hold * FS)) + 1
+        lv = g.uniform(-3.5, 3.5, k)
+        if repeat:
+            lv = g.choice(lv[:20], k)
+        u = np.repeat(lv, int(hold * FS))[:n]
+        speed = 20 * u + np.cumsum(g.standard_normal(n)) * 0.01
+        data = Dataset("lv", np.arange(n) / FS, u, np.cumsum(speed) / FS, speed, FS, 1.0, 0.0, ROTARY, False)
+        prep = prepare(data, Band())
+        rows = len(prep.t_rows)
+        resid = g.standard_normal(rows) + np.repeat(g.standard_normal(rows // 100 + 1), 100)[:rows]
+        keep = g.random(rows) > 0.1 if seed >= 2 else np.ones(rows, dtype=bool)
+        X = np.column_stack([np.ones(rows), g.standard_normal((rows, 5)), np.zeros(rows)])
+        ar = np.array([1.0, -0.3, 0.1])
+        for model, tol in [((X, ar), 1e-7), ((None, None), 1e-9)]:
+            ref = _dense_reference(prep, keep, resid, *model)
+            new = without_levels(prep, keep, resid, *model)
+            change = np.abs(resid - ref).max()
+            assert np.abs(new - ref).max() <= tol * change, (seed, model[0] is None)

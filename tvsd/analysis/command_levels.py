@@ -21,18 +21,26 @@ command answers the noise and nothing is projected (the colour is not judged the
 
 from __future__ import annotations
 
-import numpy as np
+from collections.abc import Callable
 
-from tvsd.analysis.gls import gls
-from tvsd.analysis.prep import Prepared
+import numpy as np
+from scipy.signal import filtfilt, lfilter
+
+from tvsd.analysis.prep import Prepared, _antialias
 
 MAX_LEVEL_DOF = 0.02  # at most this share of the rows' degrees of freedom go to the levels
-# and at most this many levels: the refit holds rows × (columns + K) in a few copies, and the
-# share alone let a 10-min staircase of 0.3 s holds bring 2000 columns (≈ 10 GB; 4 min took 76 s,
-# 1.6 GB), past the rows × ~140 columns memory.check budgets; 256 levels over 10 min take 53 s,
-# 1.35 GB (docs/measurements/review4.md). The outsider bench's staircases (≤ 120 s, holds
-# ≥ 0.8 s, a PRBS doubling the levels) hold ~150.
-MAX_LEVELS = 256
+# and at most this many levels: the refit is linear in the rows (piecewise normal equations) but
+# solves a (p + K)² system, O(K³): 1024 levels over 10 min take 1.3 s and 0.23 GB, 2000 took 17 s
+# and 4000 1 GB (docs/measurements/levelsfast.md). The dense refit this replaced needed a cap of
+# 256 (53 s, 1.35 GB over 10 min, docs/measurements/review4.md). The outsider bench's staircases
+# (≤ 120 s, holds ≥ 0.8 s, a PRBS doubling the levels) hold ~150.
+MAX_LEVELS = 1024
+# a filtered indicator is taken as nil this far below its size (far under the fit's own rounding)
+TAIL = 1e-20
+# the normal equations' rank cut (singular values, relative, of the equilibrated [X, C]): their
+# rounding is ~1e-16 of the largest eigenvalue, i.e. 1e-8 in singular value; lstsq cuts at ~1e-10
+RANK_TOL = 1e-7
+REFINE = 1
 
 
 def held_levels(u: np.ndarray) -> np.ndarray:
@@ -58,13 +66,50 @@ def usable_levels(u: np.ndarray, closed: bool, n_rows: int) -> np.ndarray | None
     return levels
 
 
-def level_columns(prep: Prepared) -> np.ndarray | None:
-    """Rows × K: one band-filtered indicator per held level (usable_levels), or None."""
+def _reach(prep: Prepared) -> int:
+    """Full-rate samples past a held stretch beyond which its band-filtered indicator is below
+    TAIL of its size: the slowest pole of the band low-pass and of the anti-alias filter each
+    decays as ρᵐ (×2 for the polynomial factor of a near-repeated pole; filtfilt runs each both
+    ways, which the symmetric window covers), plus the [1, 2, 1]/4 average and one decimation block."""
+    filters = [prep.a] + ([_antialias(prep.band.decim)[1]] if prep.band.decim > 1 else [])
+    m = 0
+    for a in filters:
+        rho = float(np.max(np.abs(np.roots(a)))) if len(a) > 1 else 0.0
+        m += 2 * int(np.ceil(np.log(TAIL) / np.log(rho))) if rho > 0 else 0
+    return m + 2 + 2 * prep.band.decim
+
+
+def _pieces(prep: Prepared, levels: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
+    """(level, first row, band-filtered indicator rows) per cluster of a level's samples: the
+    indicators do not overlap before the filter, and each stretch's filtered indicator is nil
+    (below TAIL) past `_reach` samples, so a column is the sum of a few short pieces and all of
+    them together cost O(samples + K·reach), not O(samples·K)."""
     u = np.asarray(prep.data.u, dtype=float)
-    levels = usable_levels(u, "omega_ref" in prep.data.refs, len(prep.t_rows))
-    if levels is None:
-        return None
-    return np.column_stack([prep.band_rows((u == v).astype(float)) for v in levels])
+    n, q = len(u), prep.band.decim
+    lab = np.clip(np.searchsorted(levels, u), 0, len(levels) - 1)
+    idx = np.flatnonzero(levels[lab] == u)
+    idx = idx[np.argsort(lab[idx], kind="stable")]  # grouped by level, in time within each
+    lab = lab[idx]
+    reach = _reach(prep)
+    # a new cluster at each level change or gap wider than two reaches
+    cut = np.flatnonzero((np.diff(lab) != 0) | (np.diff(idx) > 2 * reach + 2 * q)) + 1
+    first_row = prep.trim // q
+    n_rows = len(prep.t_rows)
+    pieces = []
+    for s, e in zip(np.r_[0, cut], np.r_[cut, len(idx)], strict=True):
+        lo = max(0, int(idx[s]) - reach) // q * q  # on the decimation's phase
+        hi = min(n, int(idx[e - 1]) + 1 + reach)
+        ind = np.zeros(hi - lo)
+        ind[idx[s:e] - lo] = 1.0
+        col = prep.lowpass(ind)
+        if q > 1:
+            b, a = _antialias(q)
+            col = filtfilt(b, a, col)[::q]
+        r0 = lo // q - first_row  # the piece's first row
+        a0, a1 = max(0, -r0), min(len(col), n_rows - r0)
+        if a1 > a0:
+            pieces.append((int(lab[s]), r0 + a0, col[a0:a1].copy()))
+    return pieces
 
 
 def without_levels(
@@ -81,12 +126,84 @@ def without_levels(
     coefficients, and the speed's transient in each hold then leaves a low-pass of the mechanical
     time constant that the levels alone do not take out (o12067: colour p 1e-7 → 1.0). An
     unweighted refit on [X, C] is not that: its coefficients follow the encoder's quantisation
-    at the band's top and move the low end (o13049: colour p 0.15 → 6e-6)."""
-    C = level_columns(prep)
-    if C is None or not keep.any():
+    at the band's top and move the low end (o13049: colour p 0.15 → 6e-6).
+
+    The fit is solved from its normal equations built piecewise (`_pieces`), so time and memory
+    are linear in the rows: the dense rows × (p + K) design of `gls` took 53 s and 1.35 GB for a
+    10-min staircase of 256 levels (docs/measurements/levelsfast.md)."""
+    u = np.asarray(prep.data.u, dtype=float)
+    n_rows = len(residual)
+    levels = usable_levels(u, "omega_ref" in prep.data.refs, n_rows)
+    if levels is None or not keep.any():
         return residual
-    if X is not None and ar is not None:
-        XC = np.column_stack([X, C])
-        return np.asarray(np.where(keep, residual - XC @ gls(residual, XC, ar, keep).theta, residual))
-    coef, *_ = np.linalg.lstsq(C[keep], residual[keep], rcond=None)
-    return np.asarray(np.where(keep, residual - C @ coef, residual))
+    if X is None or ar is None:
+        X, ar = np.zeros((n_rows, 0)), np.array([1.0])
+    pieces = _pieces(prep, levels)
+    p, K = X.shape[1], len(levels)
+    m = keep.astype(float)
+    Xw = (lfilter(ar, [1.0], X, axis=0) if p else X) * m[:, None]
+    # whitening runs len(ar) - 1 rows past a piece's end (its filter's memory)
+    spill = len(ar) - 1
+    wpieces = []
+    for j, r0, c in pieces:
+        r1 = min(n_rows, r0 + len(c) + spill)
+        cz = np.zeros(r1 - r0)
+        cz[: len(c)] = c[: r1 - r0]
+        wpieces.append((j, r0, lfilter(ar, [1.0], cz) * m[r0:r1]))
+
+    def at(v: np.ndarray) -> np.ndarray:
+        """[X, C]ᵀ of the whitened, kept rows v."""
+        out = np.zeros(p + K)
+        out[:p] = Xw.T @ v
+        for j, r0, w in wpieces:
+            out[p + j] += w @ v[r0 : r0 + len(w)]
+        return out
+
+    def fitted(theta: np.ndarray) -> np.ndarray:
+        f = X @ theta[:p]
+        for j, r0, c in pieces:
+            f[r0 : r0 + len(c)] += theta[p + j] * c
+        return f
+
+    G = np.zeros((p + K, p + K))
+    G[:p, :p] = Xw.T @ Xw
+    order = sorted(range(len(wpieces)), key=lambda i: wpieces[i][1])
+    for a_, i in enumerate(order):
+        j, r0, w = wpieces[i]
+        G[:p, p + j] += Xw[r0 : r0 + len(w)].T @ w
+        G[p + j, p + j] += w @ w
+        for k_ in order[a_ + 1 :]:  # the pieces that overlap this one (sorted by start)
+            jk, s0, wk = wpieces[k_]
+            if s0 >= r0 + len(w):
+                break
+            e = min(r0 + len(w), s0 + len(wk))
+            v = float(w[s0 - r0 : e - r0] @ wk[: e - s0])
+            G[p + j, p + jk] += v
+            G[p + jk, p + j] += v
+    G[p:, :p] = G[:p, p:].T
+    solve = _solver(G)
+    y = residual
+    theta = solve(at(lfilter(ar, [1.0], y) * m))
+    out = y - fitted(theta)
+    # refinement: the normal equations square the design's condition number (the levels'
+    # indicators nearly sum to the model's constant column); each step gains that much again
+    for _ in range(REFINE):
+        out = out - fitted(solve(at(lfilter(ar, [1.0], out) * m)))
+    return np.asarray(np.where(keep, out, residual))
+
+
+def _solver(G: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """Least squares' minimum-norm solve of the normal equations G θ = g (columns equilibrated):
+    directions of [X, C] whose singular value is under RANK_TOL of the largest are dropped, as
+    lstsq drops a dependent column — the levels' indicators sum to the model's constant column
+    where every sample is held."""
+    d = np.sqrt(np.clip(np.diag(G), 0.0, None))
+    d[d == 0] = np.inf
+    lam, V = np.linalg.eigh(G / d[:, None] / d[None, :])
+    good = lam > RANK_TOL**2 * max(float(lam.max()), 1e-300)
+    V, inv = V[:, good], 1.0 / lam[good]
+
+    def solve(g: np.ndarray) -> np.ndarray:
+        return np.asarray((V @ (inv * (V.T @ (g / d)))) / d)
+
+    return solve
