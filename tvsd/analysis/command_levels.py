@@ -24,9 +24,9 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from scipy.signal import filtfilt, lfilter
+from scipy.signal import lfilter
 
-from tvsd.analysis.prep import Prepared, _antialias
+from tvsd.analysis.prep import Prepared, antialias
 
 MAX_LEVEL_DOF = 0.02  # at most this share of the rows' degrees of freedom go to the levels
 # and at most this many levels: the refit is linear in the rows (piecewise normal equations) but
@@ -71,7 +71,7 @@ def _reach(prep: Prepared) -> int:
     TAIL of its size: the slowest pole of the band low-pass and of the anti-alias filter each
     decays as ρᵐ (×2 for the polynomial factor of a near-repeated pole; filtfilt runs each both
     ways, which the symmetric window covers), plus the [1, 2, 1]/4 average and one decimation block."""
-    filters = [prep.a] + ([_antialias(prep.band.decim)[1]] if prep.band.decim > 1 else [])
+    filters = [prep.a] + ([antialias(prep.band.decim)[1]] if prep.band.decim > 1 else [])
     m = 0
     for a in filters:
         rho = float(np.max(np.abs(np.roots(a)))) if len(a) > 1 else 0.0
@@ -101,10 +101,7 @@ def _pieces(prep: Prepared, levels: np.ndarray) -> list[tuple[int, int, np.ndarr
         hi = min(n, int(idx[e - 1]) + 1 + reach)
         ind = np.zeros(hi - lo)
         ind[idx[s:e] - lo] = 1.0
-        col = prep.lowpass(ind)
-        if q > 1:
-            b, a = _antialias(q)
-            col = filtfilt(b, a, col)[::q]
+        col = prep.decimate(prep.lowpass(ind))
         r0 = lo // q - first_row  # the piece's first row
         a0, a1 = max(0, -r0), min(len(col), n_rows - r0)
         if a1 > a0:

@@ -33,7 +33,7 @@ EMPS_BAND = Band(cutoff_hz=100.0, decim=10)
 
 
 @cache
-def _antialias(q: int) -> tuple[np.ndarray, np.ndarray]:
+def antialias(q: int) -> tuple[np.ndarray, np.ndarray]:
     b, a = cheby1(8, 0.05, 0.8 / q)
     return np.asarray(b), np.asarray(a)
 
@@ -65,11 +65,16 @@ class Prepared:
         the same filter as the speed, so both sides of the equation see the same band."""
         return self.rows(self.lowpass(column))
 
+    def decimate(self, column: np.ndarray) -> np.ndarray:
+        """One full-rate column at the rows' rate, ends not trimmed."""
+        if self.band.decim > 1:  # scipy's decimate(ftype="iir", zero_phase=True), its filter designed once
+            b, a = antialias(self.band.decim)
+            column = filtfilt(b, a, column)[:: self.band.decim]
+        return column
+
     def rows(self, column: np.ndarray) -> np.ndarray:
         """Parallel-decimate one full-rate column into regression rows."""
-        if self.band.decim > 1:  # scipy's decimate(ftype="iir", zero_phase=True), its filter designed once
-            b, a = _antialias(self.band.decim)
-            column = filtfilt(b, a, column)[:: self.band.decim]
+        column = self.decimate(column)
         keep = self.trim // self.band.decim
         # A copy, not a view: a strided view keeps the whole full-rate array alive, and every
         # candidate column is one (4× the rows' memory: 1.1 GB of a 120 s, 2 kHz analysis).

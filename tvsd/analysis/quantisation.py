@@ -37,7 +37,7 @@ from scipy.signal import butter, filtfilt, freqz
 
 from tvsd.analysis.command_levels import without_levels
 from tvsd.analysis.count_grid import STEP_KEY, recorded_step
-from tvsd.analysis.prep import Prepared, _antialias
+from tvsd.analysis.prep import Prepared, antialias
 
 SEGMENT_S = 4.0  # tvsd.analysis.noise's Welch segment (noise imports this module)
 
@@ -92,7 +92,7 @@ def _gain(prep: Prepared, f: np.ndarray) -> np.ndarray:
     _, hb = freqz(prep.b, prep.a, worN=w)
     g = np.abs(hb) ** 4 * (fs * np.sin(w)) ** 2
     if prep.band.decim > 1:
-        bc, ac = _antialias(prep.band.decim)
+        bc, ac = antialias(prep.band.decim)
         _, hc = freqz(bc, ac, worN=w)
         g = g * np.abs(hc) ** 4
     return np.asarray(g)
