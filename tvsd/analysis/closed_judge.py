@@ -12,9 +12,11 @@ confirmed along the identified directions too), `lss` (the clip's confirmation o
 spin-up's end: instrument.steady_start's spin_only); both measured and left off
 (docs/measurements/closedsat.md). `lscc`: the noise colour a closed-loop candidate by least squares with an
 excited reference (measured, left off: SIL daemon exports show a colour their plant does not
-have; docs/measurements/closedcolour.md). Each is a frozen `Variant` (VARIANTS) whose rules
-(tvsd.analysis.rules) diagnose() gets explicitly. (`lscf`, the drift confirmed with a control
-function, was measured and removed: docs/measurements/closedfix.md.)
+have; docs/measurements/closedcolour.md). `lsdp` / `lsdp0`: a closed-loop drift whose
+confirmation has no power for it stands on least squares, the trend test and the held-out folds
+(rules.drift_ls_alone on / off; docs/measurements/closeddrift2.md). Each is a frozen `Variant`
+(VARIANTS) whose rules (tvsd.analysis.rules) diagnose() gets explicitly. (`lscf`, the drift
+confirmed with a control function, was measured and removed: docs/measurements/closedfix.md.)
 """
 
 from __future__ import annotations
@@ -50,6 +52,8 @@ VARIANTS: dict[str, Variant] = {
     "ls1": Variant(Rules(lines_of_reference=False)),
     "ls2": Variant(Rules(identified_only=True, expected_maps=True)),
     "lscc": Variant(Rules(closed_colour=True)),
+    "lsdp": Variant(Rules(drift_ls_alone=True)),
+    "lsdp0": Variant(Rules(drift_ls_alone=False)),
     "iv": Variant(iv=True),
     "iv_ref": Variant(iv=True, reference_only=True),
 }

@@ -181,6 +181,32 @@ def agrees(design: D.Design, out: C.Outcome, parameter: str, sign: float) -> Tre
     return trend(c, e, s, sign)
 
 
+# The windows' trend standing alone (ls_alone) is judged at the decision's own false-alarm level
+# (calibrate.ALPHA), not at ALPHA: the trend test's 5 % is lenient because it confirms a decision
+# already taken; without a confirmation on the instruments, the trend is that second evidence.
+ALONE_ALPHA = 0.01
+
+
+def ls_alone(design: D.Design, out: C.Outcome, parameter: str, sign: float) -> bool:
+    """In closed loop, a drift that least squares alone must carry (its instrumented confirmation
+    has no power for it, verdict.name_cause with rules.drift_ls_alone): the windows' trend is a
+    clean line (`clean_line`). The law's answer to slow noise moves the least-squares parameter
+    too — a wander, which shows as scatter, a step or a weak slope (closed null 520144: an R drift
+    at z 5.0, windows t −3.7; docs/measurements/closeddrift2.md)."""
+    return clean_line(agrees(design, out, parameter, sign))
+
+
+def clean_line(tr: Trend, alpha: float = ALONE_ALPHA) -> bool:
+    """The trend agrees (the drift's sign, no step), its slope's t is beyond Student's t at
+    `alpha`/3 (Bonferroni over the three parameters, as the trend test), and the line's lack of
+    fit Q = φ·(K − 2) (at φ = 1, Q ≤ K − 2) is within χ²(K − 2)'s 1 − ALPHA point: the windows
+    differ from the line by their noise alone."""
+    if not tr.agrees or tr.df < 1 or not math.isfinite(tr.phi):
+        return False
+    t_crit = float(stats.t.ppf(1 - alpha / PARAMETERS / 2, tr.df))
+    return bool(abs(tr.t) > t_crit and tr.phi * tr.df <= float(stats.chi2.ppf(1 - ALPHA, tr.df)))
+
+
 # The per-window refits this trend test replaced (rules.drift_trend_test False: the rule before, kept
 # switchable for the matrix tools and scripts/drift_rejudge.py).
 DRIFT_WINDOWS = 5

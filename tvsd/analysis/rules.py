@@ -46,6 +46,13 @@ class Rules:
     # daemon identify exports of a white plant show a τ 7–10 ms colour above the gate on 4 of 18
     # (docs/measurements/closedcolour.md)
     closed_colour: bool = False
+    # verdict.name_cause: in closed loop, a drift whose instrumented confirmation has no power
+    # for it (closed_checks.NO_POWER) stands on least squares alone when its windows' trend is a
+    # clean line (drift.ls_alone: t at the decision's 1 %, no step, no excess scatter); the gate,
+    # the trend test and the held-out folds are passed before. False: refused, the rule before
+    # (matrix_closed's `lsdp0`; 0 alarms added on 450 closed nulls, o12114/o13115 named:
+    # docs/measurements/closeddrift2.md)
+    drift_ls_alone: bool = False
 
 
 DEFAULT = Rules()

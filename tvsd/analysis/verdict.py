@@ -187,6 +187,8 @@ def name_cause(
         if ok and chosen is None and instrumented is not None and t.cause in INSTRUMENTED_TOO:
             ok = instrumented(t.cause)  # a function of the command or the speed (closed_checks.py)
             why = None if ok else _unconfirmed(instrumented, t)
+            if why is not None and why[0] == "instrument_no_power" and _ls_alone(design, out, t, effect):
+                ok, why = True, None
         if not above:
             why = WHY["below_gate"]
         elif ok and chosen is not None:
@@ -234,6 +236,16 @@ def _unconfirmed(instrumented: Confirmation, t: C.Tested) -> tuple[str, str]:
         code, text = WHY["instrument_no_power"]
         return code, text.format(power=power)
     return WHY["not_instrumented"]
+
+
+def _ls_alone(design: D.Design, out: C.Outcome, t: C.Tested, effect: dict[str, Any]) -> bool:
+    """A drift whose confirmation had no power for it stands on least squares (rules.drift_ls_alone):
+    it passed the gate, the windows' trend and the held-out folds already; the windows must also
+    scatter no more than their errors (drift.ls_alone). The confirmation refused nothing it could
+    have seen (outsider o12114, o13115: the effect 1.7 and 1.1 of its errors at z 20 and 12)."""
+    if not design.rules.drift_ls_alone or t.cause != "drift" or t.coef is None:
+        return False
+    return drift.ls_alone(design, out, str(effect["parameter"]), float(t.coef[0]))
 
 
 def _translate(
