@@ -52,7 +52,7 @@ class Rules:
     # the trend test and the held-out folds are passed before. False: refused, the rule before
     # (matrix_closed's `lsdp0`; 0 alarms added on 450 closed nulls, o12114/o13115 named:
     # docs/measurements/closeddrift2.md)
-    drift_ls_alone: bool = False
+    drift_ls_alone: bool = True
 
 
 DEFAULT = Rules()
