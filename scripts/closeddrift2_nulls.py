@@ -4,6 +4,7 @@ docs/measurements/closeddrift2.md.
 
     nice -n 19 .venv/bin/python scripts/closeddrift2_nulls.py nulls91 OUT.jsonl I/N [--max 200]
     nice -n 19 .venv/bin/python scripts/closeddrift2_nulls.py outsider OUT.jsonl DIR I/N o12076[:drift:20] ...
+        (o14000c: outsider case 14000 drawn in closed loop whatever its draw said)
     nice -n 19 .venv/bin/python scripts/closeddrift2_nulls.py matrix OUT.jsonl DIR 520144 ...
     nice -n 19 .venv/bin/python scripts/closeddrift2_nulls.py filters OUT.jsonl I/N [--max 200]
     .venv/bin/python scripts/closeddrift2_nulls.py summary 'OUT*.jsonl'
@@ -127,7 +128,9 @@ def outsider(out: Path, folder: Path, shard: str, names: list[str]) -> None:
             continue
         case, *rest = name.split(":")
         cause, size = (rest[0], float(rest[1])) if rest else ("none", 0.0)
-        spec = ob.draw(int(case.lstrip("o")), cause, size)
+        # a trailing `c`: the draw forced to closed loop (fresh closed-loop nulls: o14000c ...)
+        forced = case.endswith("c")
+        spec = ob.draw(int(case.lstrip("o").rstrip("c")), cause, size, closed=True if forced else None)
         path = folder / f"{name.replace(':', '-')}.csv"
         if not path.exists():
             ob.write(path, spec, ob.make(spec))
