@@ -1,19 +1,20 @@
 """Which speed the doctor differentiates when a recording has both a speed column and an encoder.
 
 A tachometer behind an anti-alias filter carries white (and 1/f) noise of its own: differenced
-into an acceleration it is amplified ∝ f, so a noise of 1 % of a 100 rad/s full scale, at 1 kHz,
-is ~10⁴ rad/s²/√Hz in the rows, where the drive's own vibration is ≲ 1 rad/s^1.5. The encoder's
+into an acceleration it grows ∝ f, so 1 rad/s of white noise (1 % of a 100 rad/s full scale) at
+1 kHz is 14 rad/s²/√Hz at 50 Hz, where a drive's own vibration is 0.05–1 rad/s^1.5. The encoder's
 angle on the same file is known to within a count: its backward difference (the count
-difference, the speed of most benches) has a quantisation noise that falls ∝ f² below the
-sample rate. On the outsider bench (docs/measurements/outsidereff.md) a 20× friction asymmetry
-read z 3.3 through the tach and 320 through the encoder, a 10 ms delay 1.45 and 167.
+difference, the speed of most benches) has a quantisation noise that falls ∝ f below the sample
+rate. On the outsider bench (docs/measurements/outsidereff.md) a 20× friction asymmetry read
+z 3.3 through the tach and 323 through the encoder, a 10 ms delay 1.45 and 167.
 
-So when φ is measured the baseline's equation error is compared on both: the encoder's count
-difference replaces the recorded speed only when it leaves less than 1/MARGIN of its residual
-power (the same rows, the same band, the same columns), a difference no sampling of a null
-reaches by chance (the rows are thousands). The count step must be known (declared counts, or
-read from φ's own grid), so the speed is snapped to it and carries the quantisation floor that
-every count difference gets (tvsd.analysis.quantisation); without a grid nothing changes.
+So when φ is measured in open loop the baseline's equation error is compared on both: the
+encoder's count difference replaces the recorded speed only when it leaves less than 1/MARGIN of
+its residual power (the same rows, band and columns), a difference no sampling of a null reaches
+by chance (the rows are thousands). The count step must be known (declared counts, or read from
+φ's own grid), so the speed is snapped to it and carries the quantisation floor that every count
+difference gets (tvsd.analysis.quantisation); without a grid nothing changes. A speed that is
+already a count difference, and a closed loop, keep theirs.
 """
 
 from __future__ import annotations
@@ -96,6 +97,10 @@ def compared(data: Dataset, band: Band) -> tuple[Dataset, float] | None:
     """(the count-difference dataset, its equation error over the recorded speed's on the rows
     both move in), or None when there is no encoder grid to compare with."""
     if data.speed is None or not data.position_measured or data.units.axis != "rotary":
+        return None
+    if "omega_ref" in data.refs or "phi_ref" in data.refs:
+        # Closed loop: its rules (closed_checks, the instrumented fit) are calibrated on the speed
+        # the controller fed back; through the encoder a 20× clip read `drift` (outsidereff.md).
         return None
     counted = count_grid.recorded_step(data.speed, data.sample_rate_hz, data.meta)
     if count_grid.STEP_KEY in data.meta or counted is not None:
