@@ -17,6 +17,10 @@ for pat in ['before', 'after']:
 new = {json.loads(l)['name']: json.loads(l) for l in open('docs/measurements/outsidereff/tach.s12s13.jsonl')}
 closed_measured = {k: v for k, v in new.items() if v['excitation'] == 'closed'}
 new = {k: v for k, v in new.items() if v['excitation'] != 'closed'}  # closed loop kept out of the switch
+# A voltage or duty command held on levels (staircase, PRBS staircase) keeps its speed (a PWM
+# bridge's per-level error): those rows are integ3's too.
+pwm = {k: v for k, v in new.items() if rows[k]['spec']['unit'] in ('V', 'duty') and v['excitation'] in ('staircase', 'prbs')}
+new = {k: v for k, v in new.items() if k not in pwm}
 for loop in ('open', 'closed'):
     nl = [r for r in rows.values() if r['spec']['cause'] == 'none' and (r['spec']['excitation'] == 'closed') == (loop == 'closed')]
     b = sum(r['cause'] != 'none' for r in nl)
@@ -40,6 +44,13 @@ print('open-loop effects named', f'{tot[1]}/{tot[0]} -> {tot[2]}/{tot[0]}')
 for k in sorted(tab):
     print(k, f"{tab[k][1]}/{tab[k][0]} -> {tab[k][2]}/{tab[k][0]}")
 
+print()
+print('V/duty held on levels, had the switch applied (measured, then excluded):')
+pn = [r for r in pwm.values() if r['truth'] == 'none']
+print(f"  nulls {len(pn)}, switched {sum(r['switched'] for r in pn)}, named after {sum(r['after'] != 'none' for r in pn)}")
+for r in pwm.values():
+    if r['truth'] != 'none' and r['switched']:
+        print('  ', r['name'], r['truth'], r['size'], r['before'], '->', r['after'])
 print()
 print('closed loop, had the switch applied (measured, then excluded):')
 cn = [r for r in closed_measured.values() if r['truth'] == 'none']
