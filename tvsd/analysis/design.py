@@ -76,10 +76,15 @@ def _shift(u: np.ndarray, samples: int) -> np.ndarray:
 
 
 def build(
-    prep: Prepared, offset: bool, rotary: bool, fit_mask: np.ndarray | None = None, rules: Rules = DEFAULT
+    prep: Prepared,
+    offset: bool,
+    rotary: bool,
+    fit_mask: np.ndarray | None = None,
+    rules: Rules = DEFAULT,
+    with_options: bool = True,
 ) -> Design:
     """The baseline and every cause's options on the prepared rows; `rules` travel with the design
-    to every check that reads one (tvsd.analysis.rules)."""
+    to every check that reads one (tvsd.analysis.rules). `with_options=False`: the baseline only."""
     d = prep.data
     rows, band = prep.rows, prep.band_rows
     y = rows(prep.accel)
@@ -112,7 +117,8 @@ def build(
     X = np.column_stack([X0, best[2]])
     names.append("s")
     design = Design(prep, y, X, tuple(names), moving, best[1], float(np.max(np.abs(u))), rules=rules)
-    design.options = _options(prep, rotary, offset)
+    if with_options:
+        design.options = _options(prep, rotary, offset)
     return design
 
 

@@ -32,7 +32,16 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from tvsd.analysis import absorber, excitation, heldout_sim, instrument, quantisation, selection, sense
+from tvsd.analysis import (
+    absorber,
+    excitation,
+    heldout_sim,
+    instrument,
+    quantisation,
+    selection,
+    sense,
+    speed_source,
+)
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis.closed_checks import (
@@ -121,6 +130,12 @@ def _diagnose(
     if heldout is not None:
         sense.check_recording(heldout)
     band = band or Band()
+    # A noisy speed column beside an encoder: the count difference when it fits far better.
+    chosen = speed_source.choose(data, band)
+    if chosen is not data:
+        data = chosen
+        if heldout is not None:
+            heldout = speed_source.same_source(heldout, data)
     rotary = data.units.axis == "rotary"
     say("preparing the regression (band-limited rows, baseline and candidate columns)")
     prep = prepare(data, band)

@@ -116,6 +116,8 @@ def sentence(dg: Diagnosis) -> str:
         text = f"{text} Note: {band}."
     if retimed := dg.data.meta.get("omega_timing"):
         text = f"{text} Note: {retimed}."
+    if source := dg.data.meta.get("omega_source"):
+        text = f"{text} Note: {source}."
     return text
 
 
@@ -254,6 +256,9 @@ def as_json(dg: Diagnosis, report: str | None = None) -> dict[str, Any]:
     if retimed := dg.data.meta.get("omega_timing"):
         # the doctor moved the recorded speed (dataset.load): any delay it names is after the move
         warnings.append({"code": "omega_retimed", "reason": retimed})
+    if source := dg.data.meta.get("omega_source"):
+        # the doctor differentiated the encoder, not the recorded speed (speed_source.choose)
+        warnings.append({"code": "omega_from_encoder", "reason": source})
     if warnings:
         out["warnings"] = warnings
     if report:
