@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
 from conftest import RELAXED_FAILSAFE, daemon_config  # noqa: E402
-from test_daemon import _daemon, spin_to, wait_status  # noqa: E402
+from test_daemon import _daemon, spin_to, tvsctl, wait_status  # noqa: E402
 
 RPS = 25.0
 
@@ -31,6 +31,9 @@ def main() -> int:
     ap.add_argument("out", type=Path)
     ap.add_argument("batch", type=int)
     ap.add_argument("--runs", type=int, default=2)
+    ap.add_argument(
+        "--scan", type=float, metavar="S", help="instead: one recording of the spin-up and S s of scanning (make run's)"
+    )
     a = ap.parse_args()
     where = a.out / f"b{a.batch:02d}"
     where.mkdir(parents=True, exist_ok=True)
@@ -46,6 +49,9 @@ def main() -> int:
     gen = _daemon(where, daemon_config(where, changes), realtime=True)
     _, sock, _ = next(gen)
     try:
+        if a.scan is not None:
+            scan(sock, a.out, a.batch, a.scan)
+            return 0
         spin_to(sock, RPS, timeout=60)
         for k in range(a.runs):
             cmd = [sys.executable, "-m", "tvsd.cli.main", "identify", "--seconds", "20", "--json"]
@@ -66,6 +72,20 @@ def main() -> int:
         except StopIteration:
             pass
     return 0
+
+
+def scan(sock: Path, out: Path, batch: int, seconds: float) -> None:
+    """A `make run` walk-through's recording: from standstill, spin-up to 25 rev/s, then scanning."""
+    import time
+
+    tvsctl(sock, "record", "start")
+    spin_to(sock, RPS, timeout=60)
+    tvsctl(sock, "scan", "start")
+    time.sleep(seconds)
+    stopped = tvsctl(sock, "record", "stop", "--json").stdout
+    row = {"batch": batch, "k": 0, "outcome": "done", "scan_s": seconds, "stop": stopped[-300:]}
+    with (out / "scans.jsonl").open("a") as f:
+        f.write(json.dumps(row) + "\n")
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@
     nice -n 19 .venv/bin/python scripts/closedcolour2_judge.py nulls OUT.jsonl DIR --seed 91 --shard 0/2
     .venv/bin/python scripts/closedcolour2_judge.py summary OUT.jsonl ...
 
-Each row: the cause named with the rule on and off, the colour's likelihood ratio (χ²₁; gate 10.83 at
+Each row: the cause named with the rule on and off (integ3's default), the colour's likelihood ratio (χ²₁; gate 10.83 at
 p = 1e-3), its τ and why it was not named. The held-out speed simulation is skipped (the verdict is
 decided before it; scripts/doctor_nulls.py --no-gain). Resumable: files already in OUT are skipped.
 """
@@ -40,14 +40,14 @@ def colour_row(dg: Any) -> dict[str, Any]:
 
 
 def judge(data: Any, v0: float, off: bool = True) -> dict[str, Any]:
-    """The verdict with the rule on and (`off`) at the defaults."""
+    """The verdict with the rule on and (`off`) off, as integ3's default was."""
     from tvsd.analysis.doctor import diagnose
     from tvsd.analysis.rules import DEFAULT
 
     on = diagnose(data, v0, rules=dataclasses.replace(DEFAULT, closed_colour=True))
     row: dict[str, Any] = {"on": colour_row(on)}
     if off:
-        dg = diagnose(data, v0)
+        dg = diagnose(data, v0, rules=dataclasses.replace(DEFAULT, closed_colour=False))
         row |= {"off_cause": dg.cause, "off_causes": [x.cause for x in dg.causes]}
     return row
 
@@ -100,18 +100,23 @@ def summary(files: list[Path]) -> None:
     rows = [json.loads(x) for f in files for x in f.read_text().splitlines() if x.strip()]
     rows = list({r.get("seed", r.get("file")): r for r in rows}.values())  # a file judged twice: once
     for when in ("after", "before", None):
-        picked = [r[when] if when else r for r in rows if (when in r) == (when is not None)]
+        picked = [r[when] for r in rows if when in r] if when else [r for r in rows if "on" in r]
         if not picked:
             continue
         n = len(picked)
         on = sum(r["on"]["cause"] != "none" for r in picked)
         off = sum(r.get("off_cause", "none") != "none" for r in picked)
-        colour = sum(r["on"]["cause"] == "colored_noise" for r in picked)
+        colour = sum("colored_noise" in r["on"]["causes"] for r in picked)  # first or a later cause
         lrs = sorted(r["on"]["colour_lr"] or 0.0 for r in picked)
         out = {"set": when or "nulls", "n": n}
         for name, k in (("alarms_rule_on", on), ("alarms_rule_off", off), ("colour_named", colour)):
             lo, hi = clopper_pearson(k, n)
             out[name] = f"{k}/{n} = {100 * k / n:.2f} % (95 % CI {100 * lo:.2f}–{100 * hi:.2f} %)"
+        named: dict[str, int] = {}
+        for r in picked:
+            for c in r["on"]["causes"]:
+                named[c] = named.get(c, 0) + 1
+        out["named_rule_on"] = named
         out["colour_lr_median"] = lrs[n // 2]
         out["colour_lr_max"] = lrs[-1]
         out["above_gate"] = sum(x > 10.83 for x in lrs)
