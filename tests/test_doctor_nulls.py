@@ -60,7 +60,7 @@ def test_seeded_closed_loop_nulls_are_none(tmp_path):
         (52, 158, "saturation", "none"),
         # The closed-loop colour (Rules.closed_colour, on since docs/measurements/closedcolour2.md)
         # names this null's colour: likelihood ratio 14.8 (τ 6 ms, σv 0.81, 10 rev/s), one of the
-        # rule's false alarms (1/277 on seed 91's closed nulls, 0.01-1.99 %). The delay stays out.
+        # rule's false alarms (2/617 on seed 91's closed nulls, 0.04-1.17 %). The delay stays out.
         (52, 128, "delay", "colored_noise"),
     ],
 )
