@@ -2,9 +2,10 @@
 
 With an excited reference (identify's steps, multisine, PRBS) the least-squares residual's colour
 is judged when `rules.closed_colour` is on (matrix_closed's `lscc`): on the offline closed-loop
-matrix its nulls stay under the test's χ² level and a 15 ms colour is named. It is off by default
-(the doctor's rule): SIL daemon identify exports, whose plant is white, show a low-pass residual
-of τ 7–10 ms above the gate on 4 of 18 files."""
+matrix its nulls stay under the test's χ² level and a 15 ms colour is named. It is on by default
+since SIL daemon identify exports of a white plant, with their interpolated angle's quantisation
+floor, stay under the gate too (docs/measurements/closedcolour2.md; without that floor a low-pass
+residual of τ 7–10 ms above the gate on 4 of 18 files)."""
 
 from __future__ import annotations
 
@@ -42,17 +43,17 @@ def coloured(tmp_path_factory: pytest.TempPathFactory) -> tuple[Dataset, Config]
 def test_a_closed_loop_colour_is_named_with_the_rule_and_refused_without(
     coloured: tuple[Dataset, Config],
 ) -> None:
-    """Before the rule: `none`, the colour refused as `closed_loop_colour` (likelihood ratio 835
-    on this file). With it: `colored_noise`. Its τ within a factor 2 of the plant's 15 ms: least
+    """Without the rule: `none`, the colour refused as `closed_loop_colour` (likelihood ratio 835
+    on this file). With it (the default): `colored_noise`. Its τ within a factor 2 of the plant's 15 ms: least
     squares on the measured command takes the noise's share the law answers (below the loop's
     band) out of the residual, which flattens the low end of the spectrum, so the fitted corner
     moves; a factor 2 keeps the corner (11 Hz) inside 5.3–21 Hz, well inside the 0.5–50 Hz band
     the test sees, and tells it from the daemon exports' 7–10 ms above the gate (module doc)."""
     data, cfg = coloured
-    on = diagnose(data, cfg.plant.v0, rules=dataclasses.replace(DEFAULT, closed_colour=True))
+    on = diagnose(data, cfg.plant.v0)
     assert on.cause == "colored_noise", [(s.cause, s.z, s.why_not) for s in on.ranked]
     assert TAU_S / 2 < on.effect["tau_s"] < 2 * TAU_S, on.effect
-    off = diagnose(data, cfg.plant.v0)
+    off = diagnose(data, cfg.plant.v0, rules=dataclasses.replace(DEFAULT, closed_colour=False))
     assert off.cause == "none"
     colour = next(s for s in off.ranked if s.cause == "colored_noise")
     assert colour.p < 1e-3 and colour.why_not is not None and colour.why_not[0] == "closed_loop_colour"
@@ -74,5 +75,5 @@ def test_a_colour_under_the_loops_own_peak_is_refused_as_the_loops() -> None:
 def test_the_variants_switch_the_closed_loop_colour() -> None:
     from tvsd.analysis.closed_judge import VARIANTS
 
-    assert not DEFAULT.closed_colour
+    assert DEFAULT.closed_colour  # on by default (docs/measurements/closedcolour2.md)
     assert VARIANTS["lscc"].rules == dataclasses.replace(DEFAULT, closed_colour=True)

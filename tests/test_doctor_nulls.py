@@ -53,10 +53,18 @@ def test_seeded_closed_loop_nulls_are_none(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("seed", "index", "cause"),
-    [(32, 59, "saturation"), (32, 89, "deadzone"), (52, 158, "saturation"), (52, 128, "delay")],
+    ("seed", "index", "cause", "answer"),
+    [
+        (32, 59, "saturation", "none"),
+        (32, 89, "deadzone", "none"),
+        (52, 158, "saturation", "none"),
+        # The closed-loop colour (Rules.closed_colour, on since docs/measurements/closedcolour2.md)
+        # names this null's colour: likelihood ratio 14.8 (τ 6 ms, σv 0.81, 10 rev/s), one of the
+        # rule's false alarms (2/617 on seed 91's closed nulls, 0.04-1.17 %). The delay stays out.
+        (52, 128, "delay", "colored_noise"),
+    ],
 )
-def test_closed_loop_nulls_the_feedback_made_alarms_are_none(tmp_path, seed, index, cause):
+def test_closed_loop_nulls_the_feedback_made_alarms_are_none(tmp_path, seed, index, cause, answer):
     """Closed-loop nulls of the matrix (`identify` excitation, σv 0.8069) that were named a
     cause: the law's answer to the noise makes the command correlate with the equation's error,
     which the bootstrap (conditioning on the regressors) does not represent.
@@ -81,4 +89,4 @@ def test_closed_loop_nulls_the_feedback_made_alarms_are_none(tmp_path, seed, ind
     dg = diagnose(load(path, cfg), cfg.plant.v0)
     top = dg.outcome.tested[0]
     assert top.cause == cause and top.z > dg.outcome.threshold, (top.cause, top.z, dg.outcome.threshold)
-    assert dg.cause == "none", (dg.cause, dg.effect)
+    assert dg.cause == answer and cause not in [c.cause for c in dg.causes], (dg.cause, dg.effect)

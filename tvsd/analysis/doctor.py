@@ -209,14 +209,17 @@ def _diagnose(
         noise, plant_noise(prep, data, rotary, measured, out.keep, rules)
     )
     # Closed loop: with a constant reference not a candidate (nothing instruments the fit, and no
-    # null was measured). With an excited reference by least squares, only under
-    # rules.closed_colour (off by default): the fit on the measured command takes out of the
-    # residual the share of the noise the law answers, inside the loop's band, which flattens the
-    # spectrum's low end rather than raising it, and the offline matrix's closed-loop nulls stayed
-    # under the test's χ² level (docs/measurements/closedcolour.md); but SIL daemon identify
-    # exports of a white plant show a τ 7–10 ms colour above the gate on 4 of 18. Never when the
+    # null was measured). With an excited reference by least squares, under rules.closed_colour
+    # (on by default): the fit on the measured command takes out of the residual the share of the
+    # noise the law answers, inside the loop's band, which flattens the spectrum's low end rather
+    # than raising it; the offline matrix's closed-loop nulls and SIL daemon identify null exports
+    # (with the interpolated angle's quantisation floor) stay under the test's χ² level
+    # (docs/measurements/closedcolour.md, closedcolour2.md). Only with identify's voltage
+    # excitation (u_exc): a scan with a reference step and no excitation left a τ 14 ms colour at
+    # likelihood ratio 94 (tests/data/walk's make-run recording, nothing hidden). Never when the
     # residual's peak is the loop's (loop_peak): then its shape is the loop's, not the vibration's.
-    closed_ok = not closed_ls or (rules.closed_colour and not loop_peak)
+    colour_judged = closed_ls and rules.closed_colour and _identify_excited(data)
+    closed_ok = not closed_ls or (colour_judged and not loop_peak)
     colour_sig = noise.colour_p < COLOUR_P and note is None and closed_ok
     ranked.append(
         Scored("colored_noise", {"tau_s": noise.tau_s}, noise.colour_lr, noise.colour_p, colour_sig)
@@ -241,7 +244,7 @@ def _diagnose(
             "amplitude": math.hypot(float(effect["amplitude"]), peak_amp),
             "q": noise.peak_q,
         }
-    closed = note is not None or (closed_ls and not rules.closed_colour)
+    closed = note is not None or (closed_ls and not colour_judged)
     why = _colour_why(noise, cause, closed=closed, peak=peak, loop_peak=loop_peak)
     ranked = [
         replace(s, why_not=why) if s.cause == "colored_noise" and not s.significant else s for s in ranked
@@ -274,6 +277,12 @@ def _diagnose(
         v0,
         causes,
     )
+
+
+def _identify_excited(data: Dataset) -> bool:
+    """Whether identify's voltage excitation (the u_exc column) played in the file."""
+    exc = data.refs.get(instrument.EXCITATION)
+    return exc is not None and float(np.std(exc)) > 0
 
 
 def _colour_why(

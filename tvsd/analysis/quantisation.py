@@ -25,6 +25,19 @@ the lines' mean level, not their shape (docs/measurements/quantfloor.md).
 The rows the doctor leaves out (the shaft stuck) are gaps in the residual; with this floor their
 edges are ramped (`gated`), else they leak its f⁴ power into the lowest bins
 (docs/measurements/quantlow.md).
+
+A speed interpolated between an encoder's frames (`tvsctl export`: φ at each sample's end read off
+the line between the frames that bracket it, ω its difference over the sample) is off the count
+grid, yet carries the count's error: the frames' angles are whole counts, so at each sample edge
+the angle's error is ε_k = (1 − a_k)·e_j + a_k·e_{j+1}, e the frames' errors (white, q²/12, where the
+shaft crosses many counts per frame), a_k the edge's place between frames j and j+1. The export
+declares the frames' rate and offset against the edges (`# encoder_frame_hz:`,
+`# encoder_frame_offset_s:`) and the counts; `interpolation_gain` turns them into ε's spectrum
+relative to a white error at the samples (1 at every frequency for an on-grid count difference):
+frames at twice the sample rate at a fixed offset give a white ε of variance (1 − a)² + a² (0.5–1);
+frames at the sample rate, shared by neighbouring edges, a low-pass one. ω's error is then
+fs·(ε_k − ε_{k−1}), through the same rows' filters as the on-grid floor
+(docs/measurements/closedcolour2.md).
 """
 
 from __future__ import annotations
@@ -108,13 +121,61 @@ def count_step(prep: Prepared) -> float | None:
     return recorded_step(d.speed, d.sample_rate_hz, d.meta)
 
 
+FRAME_HZ_KEY = "encoder_frame_hz"  # the frames' rate, Hz (tvsctl export)
+FRAME_OFFSET_KEY = "encoder_frame_offset_s"  # the frames' offset after the sample edges, s
+
+
+def frames(prep: Prepared) -> tuple[float, float, float] | None:
+    """(q rad, frame rate Hz, offset s) of a speed interpolated between an encoder's frames: the
+    counts and the frames' timing declared, and ω not itself a count difference; else None."""
+    d = prep.data
+    keys = ("encoder_counts_per_rev", FRAME_HZ_KEY, FRAME_OFFSET_KEY)
+    if d.speed is None or d.units.axis != "rotary" or not all(k in d.meta for k in keys):
+        return None
+    if count_step(prep) is not None:
+        return None
+    try:
+        counts, rate, offset = (float(d.meta[k]) for k in keys)
+    except ValueError:
+        return None
+    if not (counts >= 1 and math.isfinite(rate) and rate > 0 and math.isfinite(offset)):
+        return None
+    return 2 * math.pi / counts, rate, offset
+
+
+def interpolation_gain(fs: float, frame_hz: float, offset_s: float, n: int = 8192) -> Floor:
+    """ε's two-sided PSD at the samples over a white error's of the same variance at the samples
+    (the on-grid count difference's e), as a function of frequency: ε_k = (1 − a_k)·e_j + a_k·e_{j+1}
+    at edge k = 0, 1, … (time k/fs; frame j at offset_s + j/frame_hz), e white. Its autocovariance
+    R(ℓ) = mean_k Σ_j W[k, j]·W[k+ℓ, j] (W the interpolation's weights), over n edges, so a rate a
+    little off a multiple of fs drifts the a_k over them as it does over the record."""
+    x = (np.arange(n) / fs - offset_s) * frame_hz
+    j = np.floor(x)
+    a = x - j
+    lags = math.ceil(2 * fs / frame_hz) + 1  # beyond this no two edges share a frame
+    r = np.zeros(lags + 1)
+    for lag in range(min(lags, n - 1) + 1):
+        j0, a0, j1, a1 = j[: n - lag], a[: n - lag], j[lag:], a[lag:]
+        both = (1 - a0) * ((j1 == j0) * (1 - a1) + (j1 + 1 == j0) * a1)
+        both += a0 * ((j1 == j0 + 1) * (1 - a1) + (j1 == j0) * a1)
+        r[lag] = float(np.mean(both))
+
+    def gain(f: np.ndarray) -> np.ndarray:
+        w = 2 * np.pi * np.asarray(f, dtype=float) / fs
+        return r[0] + 2 * sum(r[m] * np.cos(m * w) for m in range(1, len(r)))
+
+    return gain
+
+
 def floor(prep: Prepared, keep: np.ndarray) -> Floor | None:
     """The quantisation's one-sided PSD in the residual rows, as a function of the rows'
-    frequency; None when ω is not a count difference. `keep`: each row's weight in the residual
-    the spectral tests see, as power (0 outside the rows kept, 1 inside; `gated`'s ramps squared)."""
+    frequency; None when ω is neither a count difference nor interpolated between declared
+    frames. `keep`: each row's weight in the residual the spectral tests see, as power (0 outside
+    the rows kept, 1 inside; `gated`'s ramps squared)."""
     d = prep.data
     step = count_step(prep)
-    if step is None or d.speed is None:
+    framed = frames(prep) if step is None else None
+    if (step is None and framed is None) or d.speed is None:
         return None
     fs = d.sample_rate_hz
     b, a = butter(2, SPEED_HZ / (fs / 2))
@@ -125,7 +186,14 @@ def floor(prep: Prepared, keep: np.ndarray) -> Floor | None:
         idx = np.clip(rows_at + j - prep.band.decim // 2, 0, len(speed) - 1)
         weight[idx] = np.where(keep > 0, keep, weight[idx])
     weight *= len(speed) / max(prep.band.decim * len(keep), 1)  # the mean over the rows, not the record
-    s_e = error_psd(speed, weight, step / fs, fs, SEGMENT_S)
+    if step is not None:
+        s_e = error_psd(speed, weight, step / fs, fs, SEGMENT_S)
+    else:  # e white at the frames (q²/12), through the interpolation: q²/(6·fs)·gain one-sided
+        assert framed is not None
+        q, frame_hz, offset = framed
+        level = float(np.mean(weight)) * q * q / (6 * fs)
+        spread = interpolation_gain(fs, frame_hz, offset)
+        s_e = lambda f: level * spread(f)  # noqa: E731
     rows_rate = fs / prep.band.decim
 
     def psd(f: np.ndarray) -> np.ndarray:
@@ -181,7 +249,7 @@ def gated(
     with the model's columns and whitening, `model` = (X, ar), when given."""
     # a static drive error per held command level (a PWM's resolution) is not the vibration's colour
     resid = np.where(keep, without_levels(prep, keep, residual, *(model or (None, None))), 0.0)
-    if count_step(prep) is None:
+    if count_step(prep) is None and frames(prep) is None:
         return resid, None
     w = edge_taper(keep, rate_hz)
     return w * resid, floor(prep, w * w)

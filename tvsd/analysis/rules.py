@@ -42,10 +42,12 @@ class Rules:
     expected_for: tuple[str, ...] = ("saturation",)
     spin_only_for: tuple[str, ...] = ()
     # doctor.py: the noise colour a candidate in closed loop by least squares with an excited
-    # reference (matrix_closed's `lscc`). Off: the offline matrix's nulls hold its level, but SIL
-    # daemon identify exports of a white plant show a τ 7–10 ms colour above the gate on 4 of 18
-    # (docs/measurements/closedcolour.md)
-    closed_colour: bool = False
+    # reference and identify's excitation (u_exc; matrix_closed's `lscc`). On since the exports
+    # declare their encoder frames and the doctor has the interpolated angle's quantisation floor:
+    # SIL daemon identify null exports and the offline closed nulls stay under the gate
+    # (docs/measurements/closedcolour2.md); before, a τ 3–10 ms colour above the gate on 4 of 18
+    # exports (docs/measurements/closedcolour.md)
+    closed_colour: bool = True
     # verdict.name_cause: in closed loop, a drift whose instrumented confirmation has no power
     # for it (closed_checks.NO_POWER) stands on least squares alone when its windows' trend is a
     # clean line (drift.ls_alone: t at the decision's 1 %, no step, no excess scatter); the gate,

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from tvsd.cli.export_states import OMEGA_SOURCE, from_states
+from tvsd.cli.export_states import OMEGA_SOURCE, frame_timing, from_states
 from tvsd.cli.output import warn
 from tvsd.errors import EXIT_OK, UsageError
 from tvsd.recording.csvfile import format_lines, write
@@ -104,7 +104,7 @@ def _run(args: argparse.Namespace) -> int:
         t_first = float(rec.channels[args.channel]["t"][0]) + float(table.meta["start_s"])  # type: ignore[arg-type]
         table.columns[U_LAW] = table.columns["u"]
         table.columns["u"] = sent_column(rec.channels[PWM_CHANNEL], t_first, table, table.columns[U_LAW])
-    measured = None
+    measured, frames = None, None
     if args.channel == LOOP_CHANNEL and len(rec.channels.get(STATES_CHANNEL, ())) > 1:
         t_first = float(rec.channels[args.channel]["t"][0]) + float(table.meta["start_s"])  # type: ignore[arg-type]
         cols = table.columns
@@ -119,6 +119,7 @@ def _run(args: argparse.Namespace) -> int:
         if measured is not None:
             cols[OMEGA_LOOP] = cols["omega"]
             cols["omega"], cols["phi"], _ = measured
+            frames = frame_timing(rec.channels[STATES_CHANNEL], t_first, 1.0 / table.rate_hz)
     if args.channel == LOOP_CHANNEL and EXCITATION_CHANNEL in rec.channels:
         t_first = float(rec.channels[args.channel]["t"][0]) + float(table.meta["start_s"])  # type: ignore[arg-type]
         rows = played(rec.channels[EXCITATION_CHANNEL], rec.marks)
@@ -147,6 +148,7 @@ def _run(args: argparse.Namespace) -> int:
             if measured is not None
             else {}
         ),
+        **(encoder_meta(rec.config_text, frames) if args.channel == LOOP_CHANNEL else {}),
         **table.meta,
     }
     if rec.stats is not None:
@@ -175,6 +177,21 @@ def _outside_the_recording(out: Path, rec: Path) -> None:
     if target == rec.resolve() or (rec.is_dir() and rec.resolve() in target.parents):
         where = "is the recording" if target == rec.resolve() else "is inside the recording"
         raise UsageError(f"{out} {where} {rec}: writing there would overwrite or corrupt it; write elsewhere")
+
+
+def encoder_meta(config_text: str, frames: tuple[float, float] | None) -> dict[str, object]:
+    """The encoder the angle was read with: its counts per revolution (the daemon's `mcu` config,
+    else the setting's default, which the daemon then ran with) and, where omega and phi are
+    interpolated between its frames, their rate and offset after the sample edges — what the
+    model doctor needs for the quantisation floor of an interpolated angle (tvsd.analysis.quantisation)."""
+    from tvsd.hw.mcu.settings import McuSettings
+
+    counts = flatten_config(config_text, ("mcu",)).get("mcu.encoder_counts_per_rev")
+    meta: dict[str, object] = {"encoder_counts_per_rev": counts or McuSettings().encoder_counts_per_rev}
+    if frames is not None:
+        meta["encoder_frame_hz"] = f"{frames[0]:.9g}"
+        meta["encoder_frame_offset_s"] = f"{frames[1]:.6g}"
+    return meta
 
 
 def _gap_meta(table: Table) -> dict[str, object]:

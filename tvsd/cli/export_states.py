@@ -14,6 +14,12 @@ per loop sample, the angle at the sample's end and the mean speed over the sampl
 difference over its 1 ms, as `u` is the mean of the same 1 ms): exact but for the encoder's
 quantisation (±½ count at each end: 0.31 rad/s rms at 8192 counts/rev, almost all above the
 doctor's 100 Hz band), with no lag and no hold.
+
+That quantisation is the model doctor's known floor in its noise-colour test, but ω interpolated
+between frames is off the count grid, so the doctor cannot read it from ω: the export declares the
+encoder's counts (`# encoder_counts_per_rev:`) and the frames' timing against the samples
+(`frame_timing`: `# encoder_frame_hz:`, `# encoder_frame_offset_s:`), from which
+tvsd.analysis.quantisation builds the floor of an interpolated angle (docs/measurements/closedcolour2.md).
 """
 
 from __future__ import annotations
@@ -57,6 +63,28 @@ def from_states(
     w = np.where(ok, np.diff(at) / period, omega)
     p = np.where(ok, at[1:], phi)
     return w, p, int(np.count_nonzero(ok))
+
+
+def frame_timing(rows: np.ndarray, t_first: float, period: float) -> tuple[float, float] | None:
+    """(frame rate Hz, offset s): the frames' rate (their median spacing) and where they lie after
+    the loop's sample edges (t_first − period + k·period), modulo the frame period — the circular
+    mean over the record (the SIL's frames drift 0.01 ms in 20 s against the edges). None when the
+    frames cannot be placed."""
+    order = np.argsort(rows["mcu_ticks"], kind="stable")
+    ticks, t = rows["mcu_ticks"][order].astype(float), rows["t"][order].astype(float)
+    keep = np.concatenate([[True], np.diff(ticks) > 0])
+    ticks, t = ticks[keep], t[keep]
+    known = np.isfinite(t)
+    if np.count_nonzero(known) < 2:
+        return None
+    placed = _placed(ticks, t, known)
+    spacing = float(np.median(np.diff(placed)))
+    if not (spacing > 0):
+        return None
+    rate = 1.0 / spacing
+    turn = np.exp(2j * np.pi * rate * (placed - (t_first - period)))
+    offset = float(np.mod(np.angle(np.mean(turn)) / (2 * np.pi * rate), spacing))
+    return rate, offset
 
 
 def _placed(ticks: np.ndarray, t: np.ndarray, known: np.ndarray) -> np.ndarray:

@@ -137,6 +137,7 @@ def read(path: Path) -> Recording:
     _check_unit(meta, meta_row, fail)
     lines_hz = excitation_lines(meta.get("excitation_hz"), rate, meta_row.get("excitation_hz", 2), fail)
     _check_counts(meta.get("encoder_counts_per_rev"), meta_row.get("encoder_counts_per_rev", 2), fail)
+    _check_frames(meta, meta_row, fail)
     if row >= len(lines):
         raise fail(row + 1, "missing the column header line (t,u,omega[,phi,...])")
     header = [h.strip() for h in lines[row].split(",")]
@@ -214,6 +215,34 @@ def _check_counts(value: str | None, row: int, fail: Failer) -> None:
             f"encoder_counts_per_rev must be a whole number of counts per revolution (≥ 4), got "
             f"{value!r}: fix it or delete the line",
         )
+
+
+FRAME_KEYS = ("encoder_frame_hz", "encoder_frame_offset_s")
+
+
+def _check_frames(meta: Mapping[str, str], meta_row: Mapping[str, int], fail: Failer) -> None:
+    """`# encoder_frame_hz: F` (> 0) and `# encoder_frame_offset_s: d` (≥ 0): the encoder frames the
+    angle was interpolated between (tvsctl export), with the counts declared; both or neither."""
+    given = [k for k in FRAME_KEYS if k in meta]
+    if not given:
+        return
+    row = meta_row.get(given[0], 2)
+    if len(given) < len(FRAME_KEYS) or "encoder_counts_per_rev" not in meta:
+        raise fail(
+            row,
+            "encoder_frame_hz and encoder_frame_offset_s go together, with encoder_counts_per_rev: "
+            "give all three or delete the frame lines",
+        )
+    for key, ok in ((FRAME_KEYS[0], lambda x: x > 0), (FRAME_KEYS[1], lambda x: x >= 0)):
+        try:
+            value = float(meta[key])
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and ok(value)):
+            raise fail(
+                meta_row.get(key, row),
+                f"{key} must be a number (the rate > 0 Hz, the offset ≥ 0 s), got {meta[key]!r}: fix it",
+            )
 
 
 def format_lines(lines_hz: Iterable[float]) -> str:
