@@ -76,6 +76,9 @@ def run(a: argparse.Namespace) -> int:
 
 def summary(files: list[Path]) -> int:
     rows = [json.loads(line) for f in files for line in f.read_text().splitlines() if line.strip()]
+    refused = [r for r in rows if str(r["cause"]).startswith("exit")]  # one line, exit 2: not a name
+    rows = [r for r in rows if r not in refused]
+    print(f"refused (no verdict): {len(refused)} {[r['name'] for r in refused]}")
     nulls = [r for r in rows if r.get("truth") is None]
     modes = [r for r in rows if r.get("truth") is not None]
     if nulls:
