@@ -77,7 +77,10 @@ def test_a_closed_loop_clip_at_the_drives_rail_is_confirmed_on_the_instruments(t
     out = tmp_path / "one.jsonl"
     MC.run(out, [case], ("lsm", "ls"), gain=False)
     row = json.loads(out.read_text())
-    assert (row["lsm"], row["ls"]) == ("none", "saturation"), (row["lsm_why"], row["ls_why"])
+    # What `lsm` says instead depends on the other rules: with the closed-loop colour on
+    # (closedcolour2) the misfit its refused clip leaves is named colored_noise (z 557); the point
+    # here is only that the old confirmation refuses the clip and the default names it.
+    assert row["lsm"] != "saturation" and row["ls"] == "saturation", (row["lsm_why"], row["ls_why"])
     assert row["lsm_why"]["why_not"]["saturation"] == "not_instrumented"
 
 
