@@ -216,9 +216,12 @@ def _diagnose(
     # (with the interpolated angle's quantisation floor) stay under the test's χ² level
     # (docs/measurements/closedcolour.md, closedcolour2.md). Only with identify's voltage
     # excitation (u_exc): a scan with a reference step and no excitation left a τ 14 ms colour at
-    # likelihood ratio 94 (tests/data/walk's make-run recording, nothing hidden). Never when the
-    # residual's peak is the loop's (loop_peak): then its shape is the loop's, not the vibration's.
-    colour_judged = closed_ls and rules.closed_colour and _identify_excited(data)
+    # likelihood ratio 94 (tests/data/walk's make-run recording, nothing hidden: white up to its first
+    # command step, coloured over it), and with any moving reference the outsider's closed nulls
+    # name it 20/232 (closedcolour3.md). Never when the residual's peak is the loop's (loop_peak):
+    # then its shape is the loop's, not the vibration's.
+    excited = _identify_excited(data) or not rules.closed_colour_u_exc
+    colour_judged = closed_ls and rules.closed_colour and excited
     closed_ok = not closed_ls or (colour_judged and not loop_peak)
     colour_sig = noise.colour_p < COLOUR_P and note is None and closed_ok
     ranked.append(

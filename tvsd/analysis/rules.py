@@ -48,6 +48,9 @@ class Rules:
     # (docs/measurements/closedcolour2.md); before, a τ 3–10 ms colour above the gate on 4 of 18
     # exports (docs/measurements/closedcolour.md)
     closed_colour: bool = True
+    # ... and only where identify's excitation (u_exc) played; False: with any moving reference
+    # (the rule before closedcolour2's narrowing), measured in docs/measurements/closedcolour3.md
+    closed_colour_u_exc: bool = True
     # verdict.name_cause: in closed loop, a drift whose instrumented confirmation has no power
     # for it (closed_checks.NO_POWER) stands on least squares alone when its windows' trend is a
     # clean line (drift.ls_alone: t at the decision's 1 %, no step, no excess scatter); the gate,
