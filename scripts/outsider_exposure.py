@@ -37,8 +37,8 @@ from tvsd.analysis.prep import Band
 def scan_top_hz(fs: float, band: Band | None = None) -> float:
     """The highest frequency the doctor's resonance line scan reaches at sample rate fs."""
     band = band or Band()
-    at = band.at_rate(fs)  # the corner capped, the decimation the doctor uses at fs
-    return RES_BAND * min(at.cutoff_hz, fs / at.decim / 2)
+    corner = min(band.cutoff_hz, 0.4 * fs)
+    return RES_BAND * min(corner, fs / band.decim / 2)
 
 
 def exposure(s: ob.Spec, u_rec: np.ndarray | None = None) -> dict[str, float | str]:

@@ -31,13 +31,13 @@ def columns(rate_hz: float) -> int:
     return 2 + 2 * (D.MAX_COGGING_ORDER - 1) + 2 * D.N_THRESHOLDS + delays + 2 + 3 + 8  # + the baseline's
 
 
-def rows(n_samples: int, band: Band, rate_hz: float) -> int:
-    return math.ceil(n_samples / max(band.at_rate(rate_hz).decim, 1))
+def rows(n_samples: int, band: Band) -> int:
+    return math.ceil(n_samples / max(band.decim, 1))
 
 
 def estimate_mib(n_samples: int, rate_hz: float, band: Band) -> float:
     """The doctor's estimated peak resident memory for n_samples at rate_hz, MiB."""
-    return BASE_MIB + COPIES * 8.0 * rows(n_samples, band, rate_hz) * columns(rate_hz) / 2**20
+    return BASE_MIB + COPIES * 8.0 * rows(n_samples, band) * columns(rate_hz) / 2**20
 
 
 def available_mib() -> float:

@@ -27,23 +27,9 @@ class Band:
     cutoff_hz: float = 100.0
     decim: int = 4
     order: int = 4
-    # Lower the decimation where the rows' anti-alias corner (0.8 of their Nyquist, 0.4·fs/q)
-    # would fall below the band's corner: at 500 Hz ×4 left 125 Hz rows whose anti-alias ended
-    # at 50 Hz, so a structural mode at 50–80 Hz (the line scan's reach at 1–2 kHz) was filtered
-    # out before any test saw it. EMPS' published recipe keeps its ×10 (corner 40 Hz) on purpose.
-    keep_corner: bool = True
-
-    def at_rate(self, fs: float) -> Band:
-        """The band a recording at fs gets: the corner capped at 0.4·fs, the decimation at the
-        largest whose anti-alias corner is not below it (×2 at 500 Hz, ×4 from 1 kHz)."""
-        cutoff = min(self.cutoff_hz, 0.4 * fs)
-        decim = self.decim
-        if self.keep_corner:
-            decim = max(1, min(decim, int(0.4 * fs / cutoff + 1e-9)))
-        return Band(cutoff, decim, self.order, self.keep_corner)
 
 
-EMPS_BAND = Band(cutoff_hz=100.0, decim=10, keep_corner=False)
+EMPS_BAND = Band(cutoff_hz=100.0, decim=10)
 
 
 @cache
@@ -104,8 +90,7 @@ class Prepared:
 
 def prepare(data: Dataset, band: Band) -> Prepared:
     fs = data.sample_rate_hz
-    band = band.at_rate(fs)
-    cutoff = band.cutoff_hz
+    cutoff = min(band.cutoff_hz, 0.4 * fs)
     b, a = butter(band.order, cutoff / (fs / 2))
     dt = 1.0 / fs
     if data.speed is not None:
@@ -116,7 +101,7 @@ def prepare(data: Dataset, band: Band) -> Prepared:
         speed = np.gradient(filtfilt(b, a, data.position), dt)
         accel = np.gradient(speed, dt)
     trim = _edge(fs, cutoff, band.decim)
-    return Prepared(data, band, speed, accel, trim, b, a)
+    return Prepared(data, Band(cutoff, band.decim, band.order), speed, accel, trim, b, a)
 
 
 def _edge(fs: float, cutoff: float, decim: int) -> int:
@@ -140,8 +125,7 @@ def check_filled(data: Dataset, band: Band) -> str | None:
     filled = data.filled.astype(bool)
     n, n_filled = len(filled), int(filled.sum())
     gaps = int(np.count_nonzero(np.diff(filled.astype(np.int8)) == 1) + filled[0])
-    at = band.at_rate(data.sample_rate_hz)
-    reach = _edge(data.sample_rate_hz, at.cutoff_hz, at.decim)
+    reach = _edge(data.sample_rate_hz, min(band.cutoff_hz, 0.4 * data.sample_rate_hz), band.decim)
     seen = np.convolve(filled.astype(float), np.ones(2 * reach + 1), mode="same") > 0.5
     seen_share = float(seen.mean())
     what = (
