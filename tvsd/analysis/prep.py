@@ -7,7 +7,7 @@ filter ("parallel decimation"), so the equation holds in the band kept and the s
 nearly independent (their spacing is about the inverse of the band).
 EMPS' published reference uses 100 Hz and decimation by 10 (Janot et al. 2019); for the scanning
 aperture the band must hold lines at a few times the rotation rate, so decimation is by 4
-(250 Hz, anti-alias corner 100 Hz) from 1 kHz, and less below (×2 at 500 Hz: Band.at_rate).
+(250 Hz, anti-alias corner 100 Hz).
 """
 
 from __future__ import annotations
