@@ -67,6 +67,17 @@ def test_the_interpolated_angles_error_has_the_derived_spectrum(rate: float, off
         assert gain(np.array([10.0]))[0] == pytest.approx(0.3**2 + 0.7**2)
 
 
+@pytest.mark.parametrize("rate", [0.1, 1e-9])
+def test_frames_far_slower_than_the_samples_give_a_finite_non_negative_gain(rate: float) -> None:
+    """`# encoder_frame_hz:` only has to be > 0 (recording.csvfile). Before: 1e-9 Hz asked for a
+    2·10¹² lag autocovariance (MemoryError, `tvsctl analyze` exit 70), and at 0.1 Hz, the lags
+    reaching the n edges, the per-pair mean made the gain negative (−15: a negative floor, NaN in
+    the colour test's log). A PSD is never negative: the weights' periodogram is not."""
+    f = np.linspace(0.0, FS / 2, 2001)
+    gain = quantisation.interpolation_gain(FS, rate, 0.0)(f)
+    assert np.all(np.isfinite(gain)) and float(gain.min()) >= 0.0
+
+
 def _export_like(path: Path, rate: float, offset: float, declare: bool) -> Path:
     n = 30_000
     t, angle = _frames(rate, offset, n, seed=5)

@@ -147,22 +147,27 @@ def interpolation_gain(fs: float, frame_hz: float, offset_s: float, n: int = 819
     """ε's two-sided PSD at the samples over a white error's of the same variance at the samples
     (the on-grid count difference's e), as a function of frequency: ε_k = (1 − a_k)·e_j + a_k·e_{j+1}
     at edge k = 0, 1, … (time k/fs; frame j at offset_s + j/frame_hz), e white. Its autocovariance
-    R(ℓ) = mean_k Σ_j W[k, j]·W[k+ℓ, j] (W the interpolation's weights), over n edges, so a rate a
-    little off a multiple of fs drifts the a_k over them as it does over the record."""
+    R(ℓ) = (1/n)·Σ_k Σ_j W[k, j]·W[k+ℓ, j] (W the interpolation's weights), over n edges, so a rate
+    a little off a multiple of fs drifts the a_k over them as it does over the record. Divided by n,
+    not by the n − ℓ pairs: the weights' periodogram, never negative (with frames slower than the
+    samples the lags reach n, and the per-pair mean gave a negative floor, NaN in the colour test)."""
     x = (np.arange(n) / fs - offset_s) * frame_hz
     j = np.floor(x)
     a = x - j
-    lags = math.ceil(2 * fs / frame_hz) + 1  # beyond this no two edges share a frame
+    # Beyond 2·fs/frame_hz + 1 no two edges share a frame; nor is a lag past the n edges averaged
+    # (frames slower than that: a declared 1e-9 Hz asked for 7 TiB).
+    lags = min(math.ceil(2 * fs / frame_hz) + 1, n - 1)
     r = np.zeros(lags + 1)
-    for lag in range(min(lags, n - 1) + 1):
+    for lag in range(lags + 1):
         j0, a0, j1, a1 = j[: n - lag], a[: n - lag], j[lag:], a[lag:]
         both = (1 - a0) * ((j1 == j0) * (1 - a1) + (j1 + 1 == j0) * a1)
         both += a0 * ((j1 == j0 + 1) * (1 - a1) + (j1 == j0) * a1)
-        r[lag] = float(np.mean(both))
+        r[lag] = float(np.sum(both)) / n
 
     def gain(f: np.ndarray) -> np.ndarray:
         w = 2 * np.pi * np.asarray(f, dtype=float) / fs
-        return r[0] + 2 * sum(r[m] * np.cos(m * w) for m in range(1, len(r)))
+        g = r[0] + 2 * sum(r[m] * np.cos(m * w) for m in range(1, len(r)))
+        return np.maximum(g, 0.0)  # ≥ 0 but for the cosine sum's rounding (1e-11 at 8192 lags)
 
     return gain
 

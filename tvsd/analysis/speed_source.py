@@ -103,10 +103,8 @@ def compared(data: Dataset, band: Band) -> tuple[Dataset, float] | None:
         # Closed loop: its rules (closed_checks, the instrumented fit) are calibrated on the speed
         # the controller fed back; through the encoder a 20× clip read `drift` (outsidereff.md).
         return None
-    if (
-        data.u_unit == "V"
-        and command_levels.usable_levels(data.u, False, len(data.u) // band.decim) is not None
-    ):
+    rows = len(data.u) // band.at_rate(data.sample_rate_hz).decim  # as the doctor decimates
+    if data.u_unit == "V" and command_levels.usable_levels(data.u, False, rows) is not None:
         # A voltage (or duty) held on levels goes through a bridge that applies each level with
         # its own constant error (PWM resolution), a term the model lacks: through a quiet speed
         # it was named on 3 of 14 such nulls (8-bit bridges), 0 of 25 other nulls (outsidereff.md).

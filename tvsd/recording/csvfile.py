@@ -5,6 +5,8 @@
     # <key>: <value>            optional metadata
     # excitation_hz: 0.2 0.4 …  optional: the lines the excitation was designed with (Hz)
     # encoder_counts_per_rev: N optional: φ is an encoder's count × 2π/N (kept in meta)
+    # encoder_frame_hz: F       optional, with encoder_frame_offset_s: d and the counts: ω, φ
+                                interpolated between the encoder's frames (the checks: csvmeta)
     t,u,omega,phi[,more...]     SI: s, V, rad/s, rad (phi optional: integrated from omega)
 
 A bad file raises DataFileError with one line naming the file, the row (1-based line of the file)
@@ -18,25 +20,22 @@ from __future__ import annotations
 import math
 import re
 import stat
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from tvsd.errors import DataFileError
+from tvsd.recording.csvmeta import U_SAMPLING as U_SAMPLING  # re-exported: the readers' vocabulary
+from tvsd.recording.csvmeta import U_UNITS as U_UNITS
+from tvsd.recording.csvmeta import Failer, check_meta
+from tvsd.recording.csvmeta import format_lines as format_lines
 
 FORMAT_VERSION = "1"
-# What u is (DESIGN.md): a voltage drive (default), a current drive, a torque/force command, or a
-# PWM duty −1…1 with `u_scale` volts at full duty.
-U_UNITS = ("V", "A", "N*m", "N", "duty")
-# How u was sampled (`# u_sampling:`): "mean" over the interval up to the sample, like ω (tvsd's
-# recordings), or "hold" from the sample on (it acts one sample later). Absent: not known.
-U_SAMPLING = ("mean", "hold")
 REFERENCE_COLUMNS = ("omega_ref", "phi_ref")
 HUGE = 1e15  # no time, command, speed or angle of a drive comes near this
 REQUIRED = ("t", "u", "omega")
-Failer = Callable[[int, str], DataFileError]  # (row, problem) -> the error to raise
 
 
 @dataclass(frozen=True)
@@ -134,10 +133,7 @@ def read(path: Path) -> Recording:
             meta_row["sample_rate_hz"],
             f"sample_rate_hz must be a positive number (Hz), got {meta['sample_rate_hz']!r}: fix the line",
         )
-    _check_unit(meta, meta_row, fail)
-    lines_hz = excitation_lines(meta.get("excitation_hz"), rate, meta_row.get("excitation_hz", 2), fail)
-    _check_counts(meta.get("encoder_counts_per_rev"), meta_row.get("encoder_counts_per_rev", 2), fail)
-    _check_frames(meta, meta_row, fail)
+    lines_hz = check_meta(meta, meta_row, rate, fail)
     if row >= len(lines):
         raise fail(row + 1, "missing the column header line (t,u,omega[,phi,...])")
     header = [h.strip() for h in lines[row].split(",")]
@@ -199,106 +195,6 @@ def decode(path: Path, raw: bytes) -> str:
             f"{path}: row {row}: byte 0x{raw[exc.start]:02x} is not UTF-8 text (a Latin-1 or Windows "
             "file?): save the file as UTF-8 (the recording CSV is UTF-8)"
         ) from None
-
-
-def _check_counts(value: str | None, row: int, fail: Failer) -> None:
-    """`# encoder_counts_per_rev: N`: a whole number ≥ 4 (the model doctor reads the count's step)."""
-    if value is None:
-        return
-    try:
-        n = float(value)
-    except ValueError:
-        n = math.nan
-    if not (math.isfinite(n) and n == int(n) and 4 <= n <= 1 << 30):
-        raise fail(
-            row,
-            f"encoder_counts_per_rev must be a whole number of counts per revolution (≥ 4), got "
-            f"{value!r}: fix it or delete the line",
-        )
-
-
-FRAME_KEYS = ("encoder_frame_hz", "encoder_frame_offset_s")
-
-
-def _check_frames(meta: Mapping[str, str], meta_row: Mapping[str, int], fail: Failer) -> None:
-    """`# encoder_frame_hz: F` (> 0) and `# encoder_frame_offset_s: d` (≥ 0): the encoder frames the
-    angle was interpolated between (tvsctl export), with the counts declared; both or neither."""
-    given = [k for k in FRAME_KEYS if k in meta]
-    if not given:
-        return
-    row = meta_row.get(given[0], 2)
-    if len(given) < len(FRAME_KEYS) or "encoder_counts_per_rev" not in meta:
-        raise fail(
-            row,
-            "encoder_frame_hz and encoder_frame_offset_s go together, with encoder_counts_per_rev: "
-            "give all three or delete the frame lines",
-        )
-    for key, ok in ((FRAME_KEYS[0], lambda x: x > 0), (FRAME_KEYS[1], lambda x: x >= 0)):
-        try:
-            value = float(meta[key])
-        except ValueError:
-            value = math.nan
-        if not (math.isfinite(value) and ok(value)):
-            raise fail(
-                meta_row.get(key, row),
-                f"{key} must be a number (the rate > 0 Hz, the offset ≥ 0 s), got {meta[key]!r}: fix it",
-            )
-
-
-def format_lines(lines_hz: Iterable[float]) -> str:
-    """The `# excitation_hz:` value of a sequence of frequencies (Hz), space-separated."""
-    return " ".join(f"{float(f):.6g}" for f in lines_hz)
-
-
-def excitation_lines(value: str | None, rate: float, row: int, fail: Failer) -> tuple[float, ...]:
-    """`# excitation_hz: f1 f2 …`: the frequencies (Hz) the excitation was designed with — the
-    doctor's resonance scan leaves them out (a rigid model's misfit of the response leaves a line
-    exactly there). Each must be a number in (0, sample_rate_hz/2)."""
-    if value is None:
-        return ()
-    out: list[float] = []
-    for tok in value.replace(",", " ").split():
-        try:
-            f = float(tok)
-        except ValueError:
-            f = math.nan
-        if not (math.isfinite(f) and 0 < f < rate / 2):
-            raise fail(
-                row,
-                f"excitation_hz {tok!r} is not a frequency in (0, {rate / 2:g}) Hz; the line is "
-                "'# excitation_hz: <Hz> <Hz> ...' (the excitation's lines): fix it or delete it",
-            )
-        out.append(f)
-    if not out:
-        raise fail(row, "excitation_hz is empty; give '# excitation_hz: <Hz> <Hz> ...' or delete the line")
-    return tuple(out)
-
-
-def _check_unit(meta: Mapping[str, str], meta_row: Mapping[str, int], fail: Failer) -> None:
-    unit = meta.get("u_unit", "V")
-    if unit not in U_UNITS:
-        raise fail(
-            meta_row.get("u_unit", 2),
-            f"u_unit {unit!r} is not one of {', '.join(U_UNITS)} (what the command u is): fix the line",
-        )
-    sampling = meta.get("u_sampling")
-    if sampling is not None and sampling not in U_SAMPLING:
-        raise fail(
-            meta_row.get("u_sampling", 2),
-            f"u_sampling {sampling!r} is not one of {', '.join(U_SAMPLING)} (u averaged over the "
-            "interval up to its sample, or held from it on): fix it or delete the line",
-        )
-    if unit == "duty":
-        try:
-            scale = float(meta.get("u_scale", "nan"))
-        except ValueError:
-            scale = math.nan
-        if not (math.isfinite(scale) and scale > 0):
-            seen = f"got {meta['u_scale']!r}" if "u_scale" in meta else "the line is missing"
-            raise fail(
-                meta_row.get("u_scale", meta_row["u_unit"]),
-                f"u_unit duty needs '# u_scale: <volts at full duty>', a positive number ({seen})",
-            )
 
 
 def _parse_rows(
