@@ -81,17 +81,17 @@ def test_a_count_difference_an_angle_off_any_grid_or_a_good_speed_keeps_its_spee
 
 def test_a_voltage_on_levels_at_500_hz_counts_the_rows_the_doctor_has(tmp_path: Path) -> None:
     """The PWM guard asks command_levels.usable_levels whether u is held on levels, with the rows
-    the doctor's own level check (without_levels) sees: at 500 Hz ×2 (Band.at_rate), not ×4.
-    Before, 75 levels in 10⁴ samples (more than 2 % of 2500 rows, within 2 % of 5000) passed the
-    guard and were compared through the encoder. The same file in N·m is compared: the levels,
-    not the data, are what keeps the speed."""
+    the doctor's own level check (without_levels) sees (review5 found them apart while a 500 Hz
+    file was decimated ×2 and the guard counted ×4; that decimation was reverted). 40 levels in
+    10⁴ samples at 500 Hz: levels to both, so the speed is kept. The same file in N·m is
+    compared: the levels, not the data, are what keeps the speed."""
     from tvsd.analysis import command_levels
     from tvsd.analysis.prep import prepare
 
     s = _null("tach")
     s.fs = 500.0
     data = load(_write(tmp_path, s), load_config())
-    stair = np.repeat(np.random.default_rng(1).uniform(-1, 1, 75), math.ceil(len(data.u) / 75))
+    stair = np.repeat(np.random.default_rng(1).uniform(-1, 1, 40), math.ceil(len(data.u) / 40))
     volts = replace(data, u=stair[: len(data.u)], u_unit="V")
     rows = len(prepare(volts, Band()).rows(volts.u))
     assert command_levels.usable_levels(volts.u, False, rows) is not None  # the doctor sees levels

@@ -103,7 +103,7 @@ def compared(data: Dataset, band: Band) -> tuple[Dataset, float] | None:
         # Closed loop: its rules (closed_checks, the instrumented fit) are calibrated on the speed
         # the controller fed back; through the encoder a 20× clip read `drift` (outsidereff.md).
         return None
-    rows = len(data.u) // band.at_rate(data.sample_rate_hz).decim  # as the doctor decimates
+    rows = len(data.u) // band.decim  # the rows the doctor decimates to (without_levels' count)
     if data.u_unit == "V" and command_levels.usable_levels(data.u, False, rows) is not None:
         # A voltage (or duty) held on levels goes through a bridge that applies each level with
         # its own constant error (PWM resolution), a term the model lacks: through a quiet speed
