@@ -151,7 +151,9 @@ def command_lines_hz(signals: list[np.ndarray], fs: float) -> tuple[float, ...]:
     n = len(signals[0])
     f = np.fft.rfftfreq(n, 1.0 / fs)
     lines = signal_lines(signals, max(int(FLOOR_HZ / float(f[1] - f[0])), 21))
-    power = sum(np.abs(np.fft.rfft(u - u.mean())) ** 2 for u in signals)
+    power = np.zeros(len(f))
+    for u in signals:
+        power += np.abs(np.fft.rfft(u - u.mean())) ** 2
     out = []
     edges = np.flatnonzero(np.diff(np.concatenate(([0], lines.astype(np.int8), [0]))))
     for lo, hi in zip(edges[::2], edges[1::2], strict=True):
