@@ -53,6 +53,7 @@ from tvsd.analysis.closed_checks import (
 )
 from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.gls import gls
+from tvsd.analysis.linescan import command_lines_hz, excitation_rows
 from tvsd.analysis.noise import COLOUR_P, NoiseReport, analyse, spectral_cause
 from tvsd.analysis.peak import on_declared_line
 from tvsd.analysis.physical import physical, reduced
@@ -202,7 +203,10 @@ def _diagnose(
     J = params["J"]
     # The peak is tested before the low-pass colour (noise.spectral_cause), not only once it fired.
     peak = note is None and spectral_cause(noise, COLOUR_P) == "resonance"
-    peak = peak and not on_declared_line(noise, data.excitation_hz)  # the excitation's own line
+    # Not on the excitation's own lines: declared, or detected in the command as the line scan
+    # leaves them out (a multisine's top line misfit by the rigid model is a narrow peak).
+    lines = data.excitation_hz + command_lines_hz([x[out.keep] for x in excitation_rows(design)], rate_rows)
+    peak = peak and not on_declared_line(noise, lines)
     peak_amp = abs(J) * math.sqrt(2.0) * noise.peak_rms
     refuse = cause == "none" and peak and closed_ls
     loop_peak = refuse and not peak_in_plant(

@@ -122,17 +122,43 @@ def line_scan(
     f = np.fft.rfftfreq(n, 1.0 / fs)
     width = max(int(FLOOR_HZ / max(float(f[1] - f[0]), 1e-12)), 21)
     scan = (f >= RES_MIN_HZ) & (f <= f_hi)
-    # Each signal's lines: ordinates above the level white noise's largest of them passes with
-    # probability 1 % (exponential ordinates: ln(N/0.01) times the local mean), ± 2 bins.
-    lines = np.zeros(len(f), dtype=bool)
-    for u in signals:
-        pu = np.abs(np.fft.rfft(u - u.mean())) ** 2
-        lines |= pu > math.log(len(pu) / 0.01) * block_floor(pu, width)
-    near = np.convolve(lines.astype(float), np.ones(5), mode="same") > 0
+    near = np.convolve(signal_lines(signals, width).astype(float), np.ones(5), mode="same") > 0
     df = float(f[1] - f[0]) if len(f) > 1 else math.inf
     for f_k in declared:
         near |= np.abs(f - f_k) <= DECLARED_BINS * df + 1e-9 * df
     return LineScan(f, scan & ~near, width)
+
+
+def signal_lines(signals: list[np.ndarray], width: int) -> np.ndarray:
+    """The rfft bins where any of `signals` has a line: ordinates above the level white noise's
+    largest of them passes with probability 1 % (exponential ordinates: ln(N/0.01) times the
+    local mean of `width`-bin blocks)."""
+    n = len(signals[0]) if signals else 0
+    lines = np.zeros(n // 2 + 1, dtype=bool)
+    for u in signals:
+        pu = np.abs(np.fft.rfft(u - u.mean())) ** 2
+        lines |= pu > math.log(len(pu) / 0.01) * block_floor(pu, width)
+    return lines
+
+
+def command_lines_hz(signals: list[np.ndarray], fs: float) -> tuple[float, ...]:
+    """The frequencies of the lines `signals` hold (excitation_rows' signals on the kept rows), as
+    the line scan detects them: the largest bin of each run of line bins. For the spectral peak
+    test, which a multisine's line misfit by the rigid model fools as it fools the line scan (an
+    outsider null's 24.9 Hz `resonance`, the multisine's 25 Hz top line, no line declared)."""
+    if not signals or len(signals[0]) < 2:
+        return ()
+    n = len(signals[0])
+    f = np.fft.rfftfreq(n, 1.0 / fs)
+    lines = signal_lines(signals, max(int(FLOOR_HZ / float(f[1] - f[0])), 21))
+    power = np.zeros(len(f))
+    for u in signals:
+        power += np.abs(np.fft.rfft(u - u.mean())) ** 2
+    out = []
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], lines.astype(np.int8), [0]))))
+    for lo, hi in zip(edges[::2], edges[1::2], strict=True):
+        out.append(float(f[lo + int(np.argmax(power[lo:hi]))]))
+    return tuple(out)
 
 
 def refine_frequency(
