@@ -122,19 +122,18 @@ def line_scan(
     f = np.fft.rfftfreq(n, 1.0 / fs)
     width = max(int(FLOOR_HZ / max(float(f[1] - f[0]), 1e-12)), 21)
     scan = (f >= RES_MIN_HZ) & (f <= f_hi)
-    near = np.convolve(signal_lines(signals, width).astype(float), np.ones(5), mode="same") > 0
+    near = np.convolve(signal_lines(signals, width, len(f)).astype(float), np.ones(5), mode="same") > 0
     df = float(f[1] - f[0]) if len(f) > 1 else math.inf
     for f_k in declared:
         near |= np.abs(f - f_k) <= DECLARED_BINS * df + 1e-9 * df
     return LineScan(f, scan & ~near, width)
 
 
-def signal_lines(signals: list[np.ndarray], width: int) -> np.ndarray:
+def signal_lines(signals: list[np.ndarray], width: int, bins: int) -> np.ndarray:
     """The rfft bins where any of `signals` has a line: ordinates above the level white noise's
     largest of them passes with probability 1 % (exponential ordinates: ln(N/0.01) times the
-    local mean of `width`-bin blocks)."""
-    n = len(signals[0]) if signals else 0
-    lines = np.zeros(n // 2 + 1, dtype=bool)
+    local mean of `width`-bin blocks); `bins`: the residual's rfft length (no signal, no line)."""
+    lines = np.zeros(bins, dtype=bool)
     for u in signals:
         pu = np.abs(np.fft.rfft(u - u.mean())) ** 2
         lines |= pu > math.log(len(pu) / 0.01) * block_floor(pu, width)
@@ -150,7 +149,7 @@ def command_lines_hz(signals: list[np.ndarray], fs: float) -> tuple[float, ...]:
         return ()
     n = len(signals[0])
     f = np.fft.rfftfreq(n, 1.0 / fs)
-    lines = signal_lines(signals, max(int(FLOOR_HZ / float(f[1] - f[0])), 21))
+    lines = signal_lines(signals, max(int(FLOOR_HZ / float(f[1] - f[0])), 21), len(f))
     power = np.zeros(len(f))
     for u in signals:
         power += np.abs(np.fft.rfft(u - u.mean())) ** 2
