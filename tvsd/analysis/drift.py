@@ -184,7 +184,7 @@ def agrees(design: D.Design, out: C.Outcome, parameter: str, sign: float) -> Tre
 # The windows' trend standing alone (ls_alone) is judged at the decision's own false-alarm level
 # (calibrate.ALPHA), not at ALPHA: the trend test's 5 % is lenient because it confirms a decision
 # already taken; without a confirmation on the instruments, the trend is that second evidence.
-ALONE_ALPHA = 0.01
+ALONE_ALPHA = C.ALPHA
 
 
 def ls_alone(design: D.Design, out: C.Outcome, parameter: str, sign: float) -> bool:

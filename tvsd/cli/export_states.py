@@ -41,16 +41,10 @@ def from_states(
     (t_first + (k−1)·period, t_first + k·period] — from the state frames `rows` (t, mcu_ticks,
     phi); the loop's `omega`/`phi` where the frames do not cover a bin. None when the frames
     cannot be placed (no clock sync: fewer than two sampling instants known)."""
-    order = np.argsort(rows["mcu_ticks"], kind="stable")
-    rows = rows[order]
-    ticks = rows["mcu_ticks"].astype(float)
-    keep = np.concatenate([[True], np.diff(ticks) > 0])  # a frame recorded twice: once
-    rows, ticks = rows[keep], ticks[keep]
-    t = rows["t"].astype(float)
-    known = np.isfinite(t)
-    if np.count_nonzero(known) < 2:
+    frames = _frames(rows)
+    if frames is None:
         return None
-    t = _placed(ticks, t, known)
+    rows, t = frames
     angle = rows["phi"].astype(float)
     edges = t_first - period + np.arange(n + 1) * period
     at = np.interp(edges, t, angle)
@@ -70,14 +64,10 @@ def frame_timing(rows: np.ndarray, t_first: float, period: float) -> tuple[float
     the loop's sample edges (t_first − period + k·period), modulo the frame period — the circular
     mean over the record (the SIL's frames drift 0.01 ms in 20 s against the edges). None when the
     frames cannot be placed."""
-    order = np.argsort(rows["mcu_ticks"], kind="stable")
-    ticks, t = rows["mcu_ticks"][order].astype(float), rows["t"][order].astype(float)
-    keep = np.concatenate([[True], np.diff(ticks) > 0])
-    ticks, t = ticks[keep], t[keep]
-    known = np.isfinite(t)
-    if np.count_nonzero(known) < 2:
+    frames = _frames(rows)
+    if frames is None:
         return None
-    placed = _placed(ticks, t, known)
+    placed = frames[1]
     spacing = float(np.median(np.diff(placed)))
     if not (spacing > 0):
         return None
@@ -85,6 +75,20 @@ def frame_timing(rows: np.ndarray, t_first: float, period: float) -> tuple[float
     turn = np.exp(2j * np.pi * rate * (placed - (t_first - period)))
     offset = float(np.mod(np.angle(np.mean(turn)) / (2 * np.pi * rate), spacing))
     return rate, offset
+
+
+def _frames(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(the frames in tick order, each once; their sampling instants on the loop's axis), or None
+    when fewer than two instants are known (no clock sync)."""
+    rows = rows[np.argsort(rows["mcu_ticks"], kind="stable")]
+    ticks = rows["mcu_ticks"].astype(float)
+    keep = np.concatenate([[True], np.diff(ticks) > 0])  # a frame recorded twice: once
+    rows, ticks = rows[keep], ticks[keep]
+    t = rows["t"].astype(float)
+    known = np.isfinite(t)
+    if np.count_nonzero(known) < 2:
+        return None
+    return rows, _placed(ticks, t, known)
 
 
 def _placed(ticks: np.ndarray, t: np.ndarray, known: np.ndarray) -> np.ndarray:
