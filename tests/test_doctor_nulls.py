@@ -72,10 +72,11 @@ def test_closed_loop_nulls_the_feedback_made_alarms_are_not_named(tmp_path, seed
     Asserted: `cause` is not named, neither as the answer nor among the causes. Not that the
     answer is `none`: whether a null draws some other alarm is a matter of the false-alarm rate,
     judged on randomised nulls (the two tests above; 7/1200 closed nulls in
-    docs/measurements/session6.md), not on one file. Seed 52, 128 is named `colored_noise` since the closed-loop colour is on
-    (Rules.closed_colour, closedcolour2.md: likelihood ratio 14.8 at τ 6 ms, σv 0.81, 10 rev/s),
-    one of that rule's measured false alarms; this test expected it as the answer until
-    memflake.md, so it would have failed when the colour's false alarm went away."""
+    docs/measurements/session6.md), not on one file. Seed 52, 128 is named `colored_noise`
+    since the closed-loop colour is on (Rules.closed_colour, closedcolour2.md: likelihood ratio
+    14.8 at τ 6 ms, σv 0.81, 10 rev/s), one of that rule's measured false alarms; this test
+    expected it as the answer until memflake.md, so it would have failed when the colour's false
+    alarm went away."""
     from tvsd.analysis.dataset import load
     from tvsd.analysis.doctor import diagnose
     from tvsd.config import load_config
