@@ -8,28 +8,43 @@ import sys
 import pytest
 
 from tvsd.analysis import bench
+from tvsd.analysis.benchchild import run_child
 
 
 def test_child_figures_are_that_childs_own():
     """wait4's rusage is the child's alone: a small child after a 300 MiB one reports its own
     peak (RUSAGE_CHILDREN would keep the largest child so far), and CPU spent in a busy loop
-    shows up as CPU (≥ 0.2 s of a 0.3 s spin: the child gets ≥ 2/3 of a core even when shared)."""
+    shows up as CPU (≥ 0.2 s of a 0.3 s spin: the child gets ≥ 2/3 of a core even when shared).
+    The anonymous memory is sampled from the child's exec on: before it, under pytest, the
+    child's /proc entry shows the parent's map (vfork)."""
     big = [sys.executable, "-c", "b = bytearray(300 * 2**20); b[::4096] = b'x' * len(b[::4096])"]
-    _, _, peak_big = bench._child(big, {})
+    peak_big = run_child(big, {})
     spin = [
         sys.executable,
         "-c",
         "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.3: pass",
     ]
-    _, cpu, peak_small = bench._child(spin, {})
-    assert peak_big > 300
-    assert peak_small < 100
-    assert cpu >= 0.25
+    small = run_child(spin, {})
+    assert peak_big.peak_rss_mib > 300 and peak_big.peak_anon_mib > 300
+    assert small.peak_rss_mib < 100 and small.peak_anon_mib < 100
+    assert small.cpu_s >= 0.25
+
+
+def test_own_memory_is_what_the_code_allocates_above_the_prelude():
+    """A child that imports numpy in its prelude and then holds 64 MiB for 0.2 s: its own memory
+    is those 64 MiB (+ ≤ 4 MiB of the interpreter's objects), not numpy's libraries (their pages
+    are in the peak RSS, and in the base, not in what the code took); a 300 MiB buffer the
+    prelude took and freed is not counted either. Before, the bench measured the peak RSS alone."""
+    hold = "import time\nimport numpy as np\na = np.ones(8 * 2**20)\ntime.sleep(0.2)"
+    prelude = "import numpy\nb = bytearray(300 * 2**20)\nb[::4096] = b'x' * len(b[::4096])\ndel b"
+    got = run_child([sys.executable, "-c", hold], {}, prelude=prelude)
+    assert 64 <= got.own_mib <= 68, got
+    assert got.peak_rss_mib > got.peak_anon_mib >= got.base_anon_mib + 64, got
 
 
 def test_child_failure_names_the_exit():
     with pytest.raises(RuntimeError, match="exited 3"):
-        bench._child([sys.executable, "-c", "import sys; sys.exit(3)"], {})
+        run_child([sys.executable, "-c", "import sys; sys.exit(3)"], {})
 
 
 def test_spread_keeps_nulls_and_causes():
@@ -55,9 +70,13 @@ def test_parallel_matrix_answers_as_serial():
 
 @pytest.mark.slow
 def test_doctor_long_reports_time_memory_and_the_estimate(capsys):
-    """`tvsctl bench --only doctor_long`: per size the wall, CPU and the child's own peak RSS of
-    `tvsctl analyze`, beside the doctor's estimate (tvsd.analysis.memory), which must not
-    undershoot the measured peak by more than the interpreter's scatter (±10 %)."""
+    """`tvsctl bench --only doctor_long`: per size the wall, CPU and peak RSS of `tvsctl analyze`
+    (what a user sees), and what the analysis allocated (its anonymous memory's peak above the
+    same process's after the imports), which must not exceed the estimate of it
+    (memory.doctor_mib). No margin: that figure is the code's, not the machine's — 55.9 and 55.8
+    MiB (20 s, 1 kHz) in two venvs whose peak RSS differed by 57 MiB (memflake.md) — and a
+    sampled peak can only read low. The peak RSS has no bound here: its shared-library pages
+    are the page cache's (242 MiB in one clone, 293 in another for the same analysis)."""
     import json
 
     from tvsd.cli.main import main
@@ -66,7 +85,8 @@ def test_doctor_long_reports_time_memory_and_the_estimate(capsys):
     got = json.loads(capsys.readouterr().out)
     for key in ("doctor_long_20s_1khz", "doctor_long_10s_2khz"):
         assert got[f"{key}_wall_s"] > 0 and got[f"{key}_cpu_s"] > 0, got
-        assert got[f"{key}_peak_rss_mib"] <= 1.1 * got[f"{key}_estimate_mib"], got
+        assert got[f"{key}_peak_rss_mib"] > got[f"{key}_base_anon_mib"] + got[f"{key}_doctor_mib"], got
+        assert 0 < got[f"{key}_doctor_mib"] <= got[f"{key}_doctor_estimate_mib"], got
 
 
 def test_doctor_sizes_are_checked():
@@ -76,3 +96,28 @@ def test_doctor_sizes_are_checked():
     for bad in ("60", "60@3000", "0@1000", "x@y"):
         with pytest.raises(Exception, match="seconds@Hz"):
             _sizes(bad)
+
+
+@pytest.mark.slow
+def test_a_copy_more_of_rows_by_columns_is_measured_in_full(tmp_path):
+    """What the bench calls the doctor's own memory sees an allocation the estimate would have to
+    count: `tvsctl analyze` on a 20 s, 1 kHz recording, then the same with one more float64 copy
+    of rows × columns held through it (5.3 MiB) — measured 5.3 MiB more, within the sampled peak's
+    scatter (0.6 MiB over four runs in two venvs, memflake.md; ±1 MiB here). So an estimate short
+    by that much is short in the figure the check compares, on any machine."""
+    import os
+
+    from tvsd.analysis import memory
+    from tvsd.analysis.prep import Band
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")}
+    rec = tmp_path / "rec.csv"
+    run_child([sys.executable, "-c", bench._RECORD_AT, str(rec), "20", "1000"], env)
+    run_child([sys.executable, "-c", bench._LOAD_KERNELS], env)
+    copy_mib = 8.0 * memory.rows(20_000, Band()) * memory.columns(1000.0) / 2**20
+    analyze = f"sys.argv = ['tvsctl', 'analyze', {str(rec)!r}, '--json', '--quiet']\n"
+    analyze += "runpy.run_module('tvsd.cli.main', run_name='__main__')"
+    plain = run_child([sys.executable, "-c", f"import runpy, sys\n{analyze}"], env, bench._IMPORT_DOCTOR)
+    held = f"import runpy, sys\nimport numpy as np\nheld = np.ones({round(copy_mib * 2**17)})\n{analyze}"
+    more = run_child([sys.executable, "-c", held], env, bench._IMPORT_DOCTOR)
+    assert more.own_mib - plain.own_mib == pytest.approx(copy_mib, abs=1.0), (plain, more, copy_mib)

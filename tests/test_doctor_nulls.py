@@ -53,18 +53,10 @@ def test_seeded_closed_loop_nulls_are_none(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("seed", "index", "cause", "answer"),
-    [
-        (32, 59, "saturation", "none"),
-        (32, 89, "deadzone", "none"),
-        (52, 158, "saturation", "none"),
-        # The closed-loop colour (Rules.closed_colour, on since docs/measurements/closedcolour2.md)
-        # names this null's colour: likelihood ratio 14.8 (τ 6 ms, σv 0.81, 10 rev/s), one of the
-        # rule's false alarms (2/617 on seed 91's closed nulls, 0.04-1.17 %). The delay stays out.
-        (52, 128, "delay", "colored_noise"),
-    ],
+    ("seed", "index", "cause"),
+    [(32, 59, "saturation"), (32, 89, "deadzone"), (52, 158, "saturation"), (52, 128, "delay")],
 )
-def test_closed_loop_nulls_the_feedback_made_alarms_are_none(tmp_path, seed, index, cause, answer):
+def test_closed_loop_nulls_the_feedback_made_alarms_are_not_named(tmp_path, seed, index, cause):
     """Closed-loop nulls of the matrix (`identify` excitation, σv 0.8069) that were named a
     cause: the law's answer to the noise makes the command correlate with the equation's error,
     which the bootstrap (conditioning on the regressors) does not represent.
@@ -75,7 +67,16 @@ def test_closed_loop_nulls_the_feedback_made_alarms_are_none(tmp_path, seed, ind
     puts at z 0.8 (closed_checks.instrumented_check). Seed 52, 128: `model_mismatch`, "negative
     Coulomb friction" at 3+ standard errors — the feedback's bias, not in the errors (a delay at
     z 11.2 that dissolves tops it). Each case is checked to still put `cause` above the gate,
-    else the test would pass without exercising the rule; no tolerance: the run is seeded."""
+    else the test would pass without exercising the rule; no tolerance: the run is seeded.
+
+    Asserted: `cause` is not named, neither as the answer nor among the causes. Not that the
+    answer is `none`: whether a null draws some other alarm is a matter of the false-alarm rate,
+    judged on randomised nulls (the two tests above; 7/1200 closed nulls in
+    docs/measurements/session6.md), not on one file. Seed 52, 128 is named `colored_noise`
+    since the closed-loop colour is on (Rules.closed_colour, closedcolour2.md: likelihood ratio
+    14.8 at τ 6 ms, σv 0.81, 10 rev/s), one of that rule's measured false alarms; this test
+    expected it as the answer until memflake.md, so it would have failed when the colour's false
+    alarm went away."""
     from tvsd.analysis.dataset import load
     from tvsd.analysis.doctor import diagnose
     from tvsd.config import load_config
@@ -89,4 +90,5 @@ def test_closed_loop_nulls_the_feedback_made_alarms_are_none(tmp_path, seed, ind
     dg = diagnose(load(path, cfg), cfg.plant.v0)
     top = dg.outcome.tested[0]
     assert top.cause == cause and top.z > dg.outcome.threshold, (top.cause, top.z, dg.outcome.threshold)
-    assert dg.cause == answer and cause not in [c.cause for c in dg.causes], (dg.cause, dg.effect)
+    named = [c.cause for c in dg.causes]
+    assert dg.cause != cause and cause not in named, (dg.cause, named, dg.effect)
