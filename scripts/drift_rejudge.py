@@ -45,7 +45,7 @@ trace = {}
 orig = DF.confirmed
 
 
-def both(design, o, parameter, sign):
+def both(design, o, parameter, sign, alone=False):
     new = DF.agrees(design, o, parameter, sign)
     old = DF.window_refits_agree(design, o, parameter, sign)
     trace.update(new=new.agrees, old=bool(old), trend=new.as_dict(), parameter=parameter)

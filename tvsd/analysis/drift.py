@@ -18,6 +18,10 @@ bar, so a wandering parameter or a resonance that shifts a window's estimate doe
 
 Multiplicity: the decision scanned three parameters (R, kv, friction) and the windows test the one
 it chose, so the test's level is α/3 (Bonferroni). The trend must also have the drift block's sign.
+Where no instrumented confirmation follows (open loop), the slope must also pass t at the
+decision's own α/3 (`accepted`): the gate's bootstrap assumes the baseline right, so against a
+misfit that varies with the command (a PWM quantiser's gain over the levels a window visits) the
+windows' trend is the only evidence that time, not the command, moved the parameter.
 
 A step is not a drift: the best single change point through the window estimates (two levels)
 must not fit them significantly better than the line (its lack of fit Q_step against Q_line, in
@@ -45,6 +49,7 @@ from tvsd.analysis import absorber
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis.gls import gls
+from tvsd.analysis.rules import DEFAULT, Rules
 
 WINDOWS = 10  # 3 s windows of a 30 s record: K − 2 = 8 degrees of freedom for the scatter
 MIN_WINDOWS = 4
@@ -181,9 +186,10 @@ def agrees(design: D.Design, out: C.Outcome, parameter: str, sign: float) -> Tre
     return trend(c, e, s, sign)
 
 
-# The windows' trend standing alone (ls_alone) is judged at the decision's own false-alarm level
-# (calibrate.ALPHA), not at ALPHA: the trend test's 5 % is lenient because it confirms a decision
-# already taken; without a confirmation on the instruments, the trend is that second evidence.
+# The windows' trend standing alone (ls_alone; in open loop, `confirmed(alone=True)`) is judged at
+# the decision's own false-alarm level (calibrate.ALPHA), not at ALPHA: the trend test's 5 % is
+# lenient because it confirms a decision already taken; without a confirmation on the
+# instruments, the trend is that second evidence.
 ALONE_ALPHA = C.ALPHA
 
 
@@ -203,8 +209,15 @@ def clean_line(tr: Trend, alpha: float = ALONE_ALPHA) -> bool:
     differ from the line by their noise alone."""
     if not tr.agrees or tr.df < 1 or not math.isfinite(tr.phi):
         return False
-    t_crit = float(stats.t.ppf(1 - alpha / PARAMETERS / 2, tr.df))
-    return bool(abs(tr.t) > t_crit and tr.phi * tr.df <= float(stats.chi2.ppf(1 - ALPHA, tr.df)))
+    return beyond(tr, alpha) and tr.phi * tr.df <= float(stats.chi2.ppf(1 - ALPHA, tr.df))
+
+
+def beyond(tr: Trend, alpha: float) -> bool:
+    """The slope's t (widened by √φ) beyond Student's t with the windows' K − 2 degrees of freedom
+    at `alpha`/3 two-sided (Bonferroni over the three parameters, as the trend test)."""
+    if tr.df < 1 or not math.isfinite(tr.t):
+        return False
+    return bool(abs(tr.t) > float(stats.t.ppf(1 - alpha / PARAMETERS / 2, tr.df)))
 
 
 # The per-window refits this trend test replaced (rules.drift_trend_test False: the rule before, kept
@@ -262,12 +275,29 @@ def window_refits_agree(design: D.Design, out: C.Outcome, parameter: str, sign: 
     return trend_agrees(np.array(centres), np.array(est), np.array(var), sign, pinned)
 
 
-def confirmed(design: D.Design, out: C.Outcome, parameter: str, sign: float) -> bool:
+def confirmed(design: D.Design, out: C.Outcome, parameter: str, sign: float, alone: bool = False) -> bool:
     """The windowed trend test (`agrees`), or the per-window refits before it (the design's
-    rules.drift_trend_test off)."""
+    rules.drift_trend_test off).
+
+    `alone` (open loop: no instrumented confirmation follows): the windows' slope must also pass
+    t at the decision's α/3 (`beyond`, ALONE_ALPHA), as in closed loop without power (ls_alone).
+    The gate's bootstrap assumes the baseline right; a time-invariant misfit that the command's
+    levels make differ from window to window passes it, and then the windows' trend is the only
+    evidence that what moved is time and not the command. At 5 %/3 that let a null through:
+    outsider o14042 (V, 8-bit PWM: the quantiser's effective gain over each 6 s window follows
+    the levels the staircase visits, and on that file falls 0.8 % over the record; the windows'
+    R estimates fall 1.2 %, t −3.55 on 8 df against 3.02; docs/measurements/drift14.md)."""
     if not design.rules.drift_trend_test:
         return window_refits_agree(design, out, parameter, sign)
-    return agrees(design, out, parameter, sign).agrees
+    return accepted(agrees(design, out, parameter, sign), alone, design.rules)
+
+
+def accepted(tr: Trend, alone: bool, rules: Rules = DEFAULT) -> bool:
+    """The trend test's answer; `alone` with rules.drift_alone_alpha, its slope also beyond t at
+    the decision's α/3 (`confirmed`)."""
+    if alone and rules.drift_alone_alpha:
+        return tr.agrees and beyond(tr, ALONE_ALPHA)
+    return tr.agrees
 
 
 def trend_agrees(x: np.ndarray, y: np.ndarray, var: np.ndarray, sign: float, pinned: bool = True) -> bool:

@@ -173,7 +173,11 @@ def name_cause(
             effect.update(_translate(t.cause, effect, th, design, J, b))
         ok = above and not dissolved
         if ok and t.cause == "drift" and t.coef is not None:
-            ok = drift.confirmed(design, out, str(effect["parameter"]), float(t.coef[0]))
+            # No instrumented confirmation follows (open loop; the opt-in 2SLS design): the windows'
+            # trend is the drift's only evidence beyond the gate, judged at the decision's α
+            # (drift.confirmed).
+            alone = instrumented is None
+            ok = drift.confirmed(design, out, str(effect["parameter"]), float(t.coef[0]), alone)
             why = None if ok else WHY["drift_windows"]
         if ok and chosen is None:
             # Out of sample: fitted on four fifths, the extension must predict the fifth left out
