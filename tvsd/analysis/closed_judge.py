@@ -14,7 +14,9 @@ spin-up's end: instrument.steady_start's spin_only); both measured and left off
 excited reference (measured, left off: SIL daemon exports show a colour their plant does not
 have; docs/measurements/closedcolour.md). `lsdp` / `lsdp0`: a closed-loop drift whose
 confirmation has no power for it stands on least squares, the trend test and the held-out folds
-(rules.drift_ls_alone on / off; docs/measurements/closeddrift2.md). Each is a frozen `Variant`
+(rules.drift_ls_alone on / off; docs/measurements/closeddrift2.md). `lsap` / `lsap0`: the same for
+a direction split whose windows agree on one level (rules.asym_ls_alone on / off;
+docs/measurements/closed14.md). Each is a frozen `Variant`
 (VARIANTS) whose rules (tvsd.analysis.rules) diagnose() gets explicitly. (`lscf`, the drift
 confirmed with a control function, was measured and removed: docs/measurements/closedfix.md.)
 """
@@ -54,6 +56,8 @@ VARIANTS: dict[str, Variant] = {
     "lscc": Variant(Rules(closed_colour=True)),
     "lsdp": Variant(Rules(drift_ls_alone=True)),
     "lsdp0": Variant(Rules(drift_ls_alone=False)),
+    "lsap": Variant(Rules(asym_ls_alone=True)),
+    "lsap0": Variant(Rules(asym_ls_alone=False)),
     "iv": Variant(iv=True),
     "iv_ref": Variant(iv=True, reference_only=True),
 }

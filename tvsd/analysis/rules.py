@@ -58,6 +58,11 @@ class Rules:
     # (matrix_closed's `lsdp0`; 0 alarms added on 450 closed nulls, o12114/o13115 named:
     # docs/measurements/closeddrift2.md)
     drift_ls_alone: bool = True
+    # ... and a friction asymmetry (the direction split) when the negative direction's visits in
+    # separate time windows agree on one split (asymmetry.ls_alone: ≥ 4 windows, no excess
+    # scatter, the level's t at the decision's 1 %). False: refused, the rule before
+    # (matrix_closed's `lsap0`; docs/measurements/closed14.md)
+    asym_ls_alone: bool = True
     # drift.confirmed: where no instrumented confirmation follows (open loop), the windows' slope
     # at the decision's α/3 (t > 4.12 at 8 df), not the trend test's 5 %/3 (3.02). False: the
     # rule before (outsider null o14042 named drift, t −3.55; docs/measurements/drift14.md)

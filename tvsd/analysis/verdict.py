@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from tvsd.analysis import absorber, crossval, drift, refit, sense
+from tvsd.analysis import absorber, asymmetry, crossval, drift, refit, sense
 from tvsd.analysis import calibrate as C
 from tvsd.analysis import design as D
 from tvsd.analysis.closed_checks import NO_POWER, Confirmation
@@ -243,13 +243,20 @@ def _unconfirmed(instrumented: Confirmation, t: C.Tested) -> tuple[str, str]:
 
 
 def _ls_alone(design: D.Design, out: C.Outcome, t: C.Tested, effect: dict[str, Any]) -> bool:
-    """A drift whose confirmation had no power for it stands on least squares (rules.drift_ls_alone):
-    it passed the gate, the windows' trend and the held-out folds already; the windows must also
-    scatter no more than their errors (drift.ls_alone). The confirmation refused nothing it could
-    have seen (outsider o12114, o13115: the effect 1.7 and 1.1 of its errors at z 20 and 12)."""
-    if not design.rules.drift_ls_alone or t.cause != "drift" or t.coef is None:
+    """A cause whose confirmation had no power for it stands on least squares when its own second
+    evidence is clean. A drift (rules.drift_ls_alone): it passed the gate, the windows' trend and
+    the held-out folds already; the windows must also scatter no more than their errors
+    (drift.ls_alone; outsider o12114, o13115: the effect 1.7 and 1.1 of the confirmation's errors
+    at z 20 and 12). A direction split (rules.asym_ls_alone): the negative direction's visits in
+    separate time windows agree on one split (asymmetry.ls_alone; outsider o14106: a 1.5 ratio at
+    z 260, 1.5 of the confirmation's errors; closed null 910555, z 12.9, is refused by it)."""
+    if t.coef is None or t.option is None:
         return False
-    return drift.ls_alone(design, out, str(effect["parameter"]), float(t.coef[0]))
+    if t.cause == "drift" and design.rules.drift_ls_alone:
+        return drift.ls_alone(design, out, str(effect["parameter"]), float(t.coef[0]))
+    if t.cause == "friction_asymmetry" and design.rules.asym_ls_alone:
+        return asymmetry.ls_alone(design, out, t.option.block, t.coef)
+    return False
 
 
 def _translate(
