@@ -19,6 +19,7 @@ from tvsd.analysis import design as D
 from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.gls import gls
 from tvsd.analysis.noise import COLOUR_P, NoiseReport, analyse, spectral_cause
+from tvsd.analysis.rowgain import rows_gain
 from tvsd.analysis.rules import DEFAULT, Rules
 
 # The least-squares effect in the instrumented block's standard errors below which the
@@ -132,7 +133,7 @@ def plant_noise(
         return None
     rate = 1.0 / float(np.median(np.diff(prep.t_rows)))
     gated, floor = quantisation.gated(prep, keep, resid, rate)
-    return analyse(gated, rate, 1.0, prep.band.cutoff_hz, floor)
+    return analyse(gated, rate, 1.0, prep.band.cutoff_hz, floor, rows_gain(prep))
 
 
 def peak_in_plant(noise: NoiseReport, plant: NoiseReport | None) -> bool:

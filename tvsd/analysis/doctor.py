@@ -58,6 +58,7 @@ from tvsd.analysis.noise import COLOUR_P, NoiseReport, analyse, spectral_cause
 from tvsd.analysis.peak import on_declared_line
 from tvsd.analysis.physical import physical, reduced
 from tvsd.analysis.prep import Band, prepare
+from tvsd.analysis.rowgain import rows_gain
 from tvsd.analysis.rules import DEFAULT, Rules
 from tvsd.analysis.simulate import ReducedModel
 from tvsd.analysis.verdict import Scored, name_cause
@@ -197,7 +198,8 @@ def _diagnose(
     resid = instrument.residual(measured, design, verdict)
     model = (verdict.X, out.ar) if design is measured else None  # the levels refitted with the model
     resid, floor = quantisation.gated(prep, out.keep, resid, rate_rows, model)
-    noise = analyse(resid, rate_rows, params["J"] if params["J"] > 0 else 1.0, prep.band.cutoff_hz, floor)
+    J_noise = params["J"] if params["J"] > 0 else 1.0
+    noise = analyse(resid, rate_rows, J_noise, prep.band.cutoff_hz, floor, rows_gain(prep))
     ranked = verdict.ranked
     cause, effect = verdict.cause, verdict.effect
     J = params["J"]

@@ -31,8 +31,9 @@ from scipy.optimize import minimize
 from scipy.signal import get_window, welch
 from scipy.stats import chi2
 
-from tvsd.analysis.peak import PEAK_FLOOR_C, PEAK_Q, PEAK_WHITE_LR, fit_peak, seen_height
+from tvsd.analysis.peak import PEAK_FLOOR_C, PEAK_Q, PEAK_WHITE_LR, fit_peak, fit_shapes, seen_height
 from tvsd.analysis.quantisation import Floor
+from tvsd.analysis.rowgain import Gain, peak_top
 
 COLOUR_P = 1e-3  # the noise colour's likelihood ratio (χ², 1 dof) must beat this p-value (the doctor's gate)
 SEGMENT_S = 4.0
@@ -133,12 +134,19 @@ def effective_segments(segments: int, nper: int) -> float:
 
 
 def analyse(
-    residual: np.ndarray, rate_hz: float, J: float, band_hz: float, floor: Floor | None = None
+    residual: np.ndarray,
+    rate_hz: float,
+    J: float,
+    band_hz: float,
+    floor: Floor | None = None,
+    gain: Gain | None = None,
 ) -> NoiseReport:
     """The spectral tests on the residual rows; `floor`: the encoder quantisation's known PSD
-    (tvsd.analysis.quantisation.floor), None when the speed is not a count difference."""
+    (tvsd.analysis.quantisation.floor), None when the speed is not a count difference; `gain`:
+    the rows' filters' power response (tvsd.analysis.rowgain.rows_gain), which takes the peak
+    test to the band filter's corner (None: to half of it, where the filter is flat)."""
     f, p, segments = _welch(residual, rate_hz)
-    return spectrum_report(f, p, segments, J, band_hz, ljung_box(residual), floor)
+    return spectrum_report(f, p, segments, J, band_hz, ljung_box(residual), floor, gain)
 
 
 def colour_test(
@@ -225,11 +233,13 @@ def spectrum_report(
     band_hz: float,
     lb_p: float = math.nan,
     floor: Floor | None = None,
+    gain: Gain | None = None,
 ) -> NoiseReport:
     """The spectral tests on a Welch spectrum (f, p) of `segments` segments (a stored spectrum
     can be re-judged without its residual). The colour test stops where the quantisation's floor
     passes the flat level (`_in_band`); the peak test runs over the whole band with the floor in
-    its model (a peak must stand PEAK_FLOOR_C× above it: `spectral_cause`)."""
+    its model (a peak must stand PEAK_FLOOR_C× above it: `spectral_cause`); with the filters'
+    `gain`, over the band the filters pass (`_peak_fits`)."""
     fw, pw, kw, a0, cut = _whole_band(f, p, band_hz, floor)
     cut_hz = float(fw[cut]) if cut < len(fw) else None
     sigma0 = math.sqrt(a0 / 2) / J if J > 0 else math.nan
@@ -251,12 +261,15 @@ def spectrum_report(
         colour_band = (float(fm[0]), float(fm[-1]))
         if cut == len(fw):  # no floor cut: the colour's fits are the peak's alternatives
             whole = (white, best, b0)
-    if whole is None:  # the peak's alternatives over the whole band, the known floor in both
-        b0w = _slope(fw, pw, kw)
-        whole = (*_colour_fits(fw, pw, kw, a0, b0w), b0w)
-    white_w, best_w, b0w = whole
-    fun_peak, f0, q, power, height = fit_peak(fw, pw, a0, b0w, kw)
-    seen = seen_height(fw, f0, q, height, 1.5 * float(f[1] - f[0]))
+    if gain is not None:
+        fw, (white_w, best_w, fun_peak, f0, q, power, seen) = _peak_fits(f, p, a0, floor, gain)
+    else:
+        if whole is None:  # the peak's alternatives over the whole band, the known floor in both
+            b0w = _slope(fw, pw, kw)
+            whole = (*_colour_fits(fw, pw, kw, a0, b0w), b0w)
+        white_w, best_w, b0w = whole
+        fun_peak, f0, q, power, height = fit_peak(fw, pw, a0, b0w, kw)
+        seen = seen_height(fw, f0, q, height, 1.5 * float(f[1] - f[0]))
     over = math.inf if floor is None else seen / max(float(floor(np.array([f0]))[0]), 1e-300)
     return NoiseReport(
         lb_p,
@@ -276,3 +289,19 @@ def spectrum_report(
         (float(fw[0]), float(fw[-1])),
         cut_hz,
     )
+
+
+def _peak_fits(
+    f: np.ndarray, p: np.ndarray, a0: float, floor: Floor | None, gain: Gain
+) -> tuple[np.ndarray, tuple[Any, Any, float, float, float, float, float]]:
+    """The peak test's bins — up to where the filters' gain falls to rowgain.PEAK_GAIN_MIN — and
+    its fits through the gain: the two alternatives, the peak (fun, f0, Q, power before the
+    filters) and its height as the spectrum shows it (through the gain at f0)."""
+    m = (f >= BAND_LOW_HZ) & (f <= peak_top(gain, f))
+    fw, pw = f[m], p[m]
+    gw = np.asarray(gain(fw), dtype=float)
+    kw = np.zeros_like(fw) if floor is None else np.asarray(floor(fw), dtype=float)
+    white, best, b0 = fit_shapes(fw, pw, kw, gw, a0)
+    fun_peak, f0, q, power, height = fit_peak(fw, pw, a0, b0, kw, gw)
+    seen = seen_height(fw, f0, q, height, 1.5 * float(f[1] - f[0])) * float(gain(np.array([f0]))[0])
+    return fw, (white, best, fun_peak, f0, q, power, seen)

@@ -10,7 +10,7 @@ the thresholds below. Split from noise.py (branch splits3), unchanged."""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.optimize import minimize
@@ -44,22 +44,31 @@ def on_declared_line(report: NoiseReport, lines_hz: tuple[float, ...]) -> bool:
     return any(abs(report.peak_hz - f) <= half for f in lines_hz)
 
 
-def _whittle_peak(params: np.ndarray, f: np.ndarray, p: np.ndarray, known: np.ndarray) -> float:
+def _whittle_peak(
+    params: np.ndarray, f: np.ndarray, p: np.ndarray, known: np.ndarray, gain: np.ndarray | float = 1.0
+) -> float:
     if np.any(np.abs(params) > 300):  # exp would overflow: outside any physical spectrum
         return math.inf
     a, b, A, f0, q = (math.exp(x) for x in params)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        s = a + b * f**2 + known + A / (1 + q**2 * (f / f0 - f0 / f) ** 2)
+        s = gain * (a + b * f**2 + A / (1 + q**2 * (f / f0 - f0 / f) ** 2)) + known
         value = float(np.sum(np.log(s) + p / s))
     return value if math.isfinite(value) else math.inf
 
 
 def fit_peak(
-    fm: np.ndarray, pm: np.ndarray, a0: float, b0: float, known: np.ndarray
+    fm: np.ndarray,
+    pm: np.ndarray,
+    a0: float,
+    b0: float,
+    known: np.ndarray,
+    gain: np.ndarray | float = 1.0,
 ) -> tuple[float, float, float, float, float]:
-    """Whittle fit of a flat + f² (+ the known quantisation) floor with one resonant (Lorentzian)
-    peak: (fun, f0, Q, power, height at f0)."""
-    floor = a0 + b0 * fm**2 + known
+    """Whittle fit of a flat + f² floor with one resonant (Lorentzian) peak, all through the
+    rows' filters' power response `gain` (tvsd.analysis.rowgain), plus the known quantisation:
+    (fun, f0, Q, power, height at f0) of the peak before the filters."""
+    gain = np.broadcast_to(np.asarray(gain, dtype=float), fm.shape)
+    floor = gain * (a0 + b0 * fm**2) + known
     starts = [int(np.argmax(pm / floor))]
     if np.any(known > 0):  # over the floor a single bin's scatter is large: also the 5-bin excess
         starts.append(int(np.argmax(np.convolve(pm / floor, np.ones(5) / 5, mode="same"))))
@@ -69,12 +78,16 @@ def fit_peak(
             start = [
                 math.log(a0),
                 math.log(b0),
-                math.log(max(pm[k] - floor[k], 1e-3 * floor[k])),
+                math.log(max(pm[k] - floor[k], 1e-3 * floor[k]) / gain[k]),
                 math.log(fm[k]),
                 math.log(q0),
             ]
             r = minimize(
-                _whittle_peak, start, args=(fm, pm, known), method="Nelder-Mead", options={"maxiter": 3000}
+                _whittle_peak,
+                start,
+                args=(fm, pm, known, gain),
+                method="Nelder-Mead",
+                options={"maxiter": 3000},
             )
             if best is None or r.fun < best.fun:
                 best = r
@@ -82,6 +95,43 @@ def fit_peak(
     _, _, A, f0, q = (math.exp(x) for x in best.x)
     power = A * math.pi * f0 / (2 * q)  # ∫ of the Lorentzian over f (narrow-peak limit)
     return float(best.fun), f0, q, power, A
+
+
+def _whittle_shape(
+    params: np.ndarray, f: np.ndarray, p: np.ndarray, known: np.ndarray, gain: np.ndarray
+) -> float:
+    """noise._whittle's flat + f² (+ low-pass with a third parameter) shapes through `gain`."""
+    if np.any(np.abs(params) > 300):  # exp would overflow: outside any physical spectrum
+        return math.inf
+    a, b = math.exp(params[0]), math.exp(params[1])
+    lowpass = 1.0 if len(params) < 3 else 1 + (2 * math.pi * f * math.exp(params[2])) ** 2
+    s = gain * (a / lowpass + b * f**2) + known
+    return float(np.sum(np.log(s) + p / s))
+
+
+def fit_shapes(
+    fm: np.ndarray, pm: np.ndarray, known: np.ndarray, gain: np.ndarray, a0: float
+) -> tuple[Any, Any, float]:
+    """The peak's alternatives through the rows' filters (the white and the low-pass shape, as
+    noise._colour_fits fits them without filters), and the f² term's start."""
+    k = max(3, len(pm) // 10)
+    b0 = max(float(np.median(((pm - known) / gain)[-k:])) / fm[-1] ** 2, 1e-30)
+    white = minimize(
+        _whittle_shape, [math.log(a0), math.log(b0)], args=(fm, pm, known, gain), method="Nelder-Mead"
+    )
+    best = None
+    for tau0 in (0.003, 0.01, 0.03, 0.1, 0.3):
+        r = minimize(
+            _whittle_shape,
+            [math.log(a0), math.log(b0), math.log(tau0)],
+            args=(fm, pm, known, gain),
+            method="Nelder-Mead",
+            options={"maxiter": 2000},
+        )
+        if best is None or r.fun < best.fun:
+            best = r
+    assert best is not None
+    return white, best, b0
 
 
 def seen_height(fw: np.ndarray, f0: float, q: float, height: float, enbw: float) -> float:
