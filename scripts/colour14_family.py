@@ -19,64 +19,12 @@ import argparse
 import json
 import sys
 import tempfile
-import time
 from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-import outsider_bench as ob
+import outsider_classes as oc
 from scipy.stats import beta
-
-CLASSES: dict[str, dict[str, Any]] = {
-    "coarse": dict(unit="V", fs=2000.0, seconds=30.0, excitation="staircase", cpr=256, pwm_bits=8),
-    "prbs500": dict(unit="V", fs=500.0, seconds=60.0, excitation="prbs", cpr=8192, pwm_bits=10),
-    "coarse1k": dict(unit="V", fs=1000.0, seconds=30.0, excitation=("staircase", "prbs"), cpr=1024, pwm_bits=8),
-}
-
-
-def v_seeds(seed: int, n: int) -> list[int]:
-    """The first n case seeds from `seed` whose outsider draw is a V drive (its command range,
-    PWM and back-EMF as drawn)."""
-    out, j = [], seed
-    while len(out) < n:
-        if ob.draw(j, "none", 0.0, closed=False).unit == "V":
-            out.append(j)
-        j += 1
-    return out
-
-
-def spec_of(cls: str, seed: int, cause: str, size: float) -> ob.Spec:
-    """The outsider's draw (open loop) with the class's fields set."""
-    s = ob.draw(seed, cause, size, closed=False)
-    c = CLASSES[cls]
-    exc = c["excitation"]
-    s.excitation = exc if isinstance(exc, str) else exc[seed % len(exc)]
-    s.fs, s.seconds = c["fs"], c["seconds"]
-    s.drive["pwm_bits"] = c["pwm_bits"]
-    s.sensor.update(cpr=c["cpr"], omega="diff", declare_cpr=True)
-    if cause == "resonance":  # a mode below the class's fs/5, as draw() places it
-        s.truth["frequency_hz"] = min(s.truth["frequency_hz"], 0.2 * s.fs)
-    return s
-
-
-def run_one(s: ob.Spec, tmp: Path) -> dict[str, Any]:
-    from tvsd.analysis import doctor
-    from tvsd.analysis.dataset import load
-    from tvsd.config import load_config
-
-    path = tmp / f"{s.name}.csv"
-    ob.write(path, s, ob.make(s))
-    cfg = load_config()
-    t0 = time.time()
-    try:
-        d = doctor.diagnose(load(path, cfg), cfg.plant.v0)
-    except Exception as e:  # a refusal (DataFileError and the like): recorded, not named
-        return {"cause": "refused", "error": str(e)[:160], "wall_s": time.time() - t0}
-    finally:
-        path.unlink(missing_ok=True)
-    n = d.noise
-    return {"cause": d.cause, "colour_p": n.colour_p, "tau_s": n.tau_s, "floor_hz": n.floor_cut_hz,
-            "band": n.colour_band_hz, "wall_s": round(time.time() - t0, 2)}  # fmt: skip
 
 
 def cp95(k: int, n: int) -> tuple[float, float]:
@@ -86,7 +34,7 @@ def cp95(k: int, n: int) -> tuple[float, float]:
 
 
 def summary(paths: list[str]) -> None:
-    rows = [json.loads(line) for p in paths for line in open(p)]
+    rows = [json.loads(line) for p in paths for line in Path(p).read_text().splitlines()]
     by: dict[str, list[dict[str, Any]]] = {}
     for r in rows:
         by.setdefault(f"{r['class']} {r['truth']}", []).append(r)
@@ -95,14 +43,16 @@ def summary(paths: list[str]) -> None:
         col = sum(r["cause"] == "colored_noise" for r in rs)
         other = sum(r["cause"] not in ("none", "colored_noise", "refused") for r in rs)
         lo, hi = cp95(col, n)
-        print(f"{key}: colored_noise {col}/{n} ({100 * col / n:.1f} %, 95 % CP {100 * lo:.1f}–{100 * hi:.1f} %), "
-              f"other causes {other}, refused {sum(r['cause'] == 'refused' for r in rs)}")
+        print(
+            f"{key}: colored_noise {col}/{n} ({100 * col / n:.1f} %, CP {100 * lo:.1f}–{100 * hi:.1f} %), "
+            f"other causes {other}, refused {sum(r['cause'] == 'refused' for r in rs)}"
+        )
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("out", nargs="+")
-    ap.add_argument("--class", dest="cls", default="coarse", choices=sorted(CLASSES))
+    ap.add_argument("--class", dest="cls", default="coarse", choices=sorted(oc.CLASSES))
     ap.add_argument("--n", type=int, default=30)
     ap.add_argument("--seed", type=int, default=140000)
     ap.add_argument("--cause", default=None, help="cause:size, e.g. colored_noise:6 (default: nulls)")
@@ -116,9 +66,9 @@ def main(argv: list[str] | None = None) -> int:
     i, k = (int(x) for x in a.shard.split("/"))
     tmp = Path(tempfile.mkdtemp(prefix="c14fam"))
     with open(a.out[0], "a") as fh:
-        for case in v_seeds(a.seed, a.n)[i::k]:
-            s = spec_of(a.cls, case, cause, size)
-            r = {"class": a.cls, "seed": case, "truth": f"{cause}:{size:g}", **run_one(s, tmp)}
+        for case in oc.v_seeds(a.seed, a.n)[i::k]:
+            s = oc.spec_of(a.cls, case, cause, size)
+            r = {"class": a.cls, "seed": case, "truth": f"{cause}:{size:g}", **oc.run_one(s, tmp)}
             fh.write(json.dumps(r) + "\n")
             fh.flush()
     return 0

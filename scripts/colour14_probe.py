@@ -49,7 +49,7 @@ def _analyse_capture(resid: np.ndarray, rate: float, J: float, band: float, floo
 
 def run(spec: ob.Spec, tmp: Path) -> dict[str, Any]:
     """The doctor on a drawn spec; what it handed the spectral tests."""
-    doctor.quantisation.gated = _gated_capture  # this script's wrappers: the inputs, unchanged
+    quantisation.gated = _gated_capture  # this script's wrappers: the inputs, unchanged
     doctor.analyse = _analyse_capture
     cols = ob.make(spec)
     path = tmp / f"{spec.name}.csv"
@@ -113,10 +113,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed-shift", type=int, default=0, help="another vibration: the make() seed + K")
     ap.add_argument("--cause", default=None)
     ap.add_argument("--set", dest="changes", action="append", default=[], help="KEY=VALUE on the base spec")
+    ap.add_argument("--class", dest="cls", default=None, help="a class of tests/outsider_classes.py")
     ap.add_argument("--dump", default=None, help="write the rows to this .npz")
     a = ap.parse_args(argv)
     cause, size = (a.cause.split(":")[0], float(a.cause.split(":")[1])) if a.cause else ("none", 0.0)
-    s = ob.draw(int(a.case.lstrip("o")), cause, size)
+    if a.cls:
+        import outsider_classes as oc
+
+        s = oc.spec_of(a.cls, int(a.case.lstrip("o")), cause, size)
+    else:
+        s = ob.draw(int(a.case.lstrip("o")), cause, size)
     s.seed += a.seed_shift
     for kv in a.changes:
         k, v = kv.split("=")

@@ -46,7 +46,8 @@ from tvsd.analysis.quantisation import Floor
 # 5-tap FIR over t − 2 … t + 2 (a held command acts a sample late, tvsd.analysis.verdict's
 # `sampling_convention`; the outsider's backward-difference ω is half a sample late)
 FIR_TAPS = (1, 2, -2)
-FLOOR_AR_ORDER = 48  # flat + an f⁴ floor rising 10⁶ to the rows' Nyquist whitened to 0.9–1.1 (AR(24): 0.27–1.7)
+# flat + an f⁴ floor rising 10⁶ to the rows' Nyquist is whitened to 0.9–1.1 by AR(48) (AR(24): 0.27–1.7)
+FLOOR_AR_ORDER = 48
 SEGMENT_S = 4.0  # the spectral tests' Welch segment (tvsd.analysis.noise)
 
 
