@@ -24,6 +24,8 @@ import numpy as np
 from scipy.signal import csd, welch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+import itertools
+
 import outsider_bench as ob
 
 from tvsd.analysis import doctor, noise, quantisation
@@ -87,7 +89,9 @@ def fd_theta(y: np.ndarray, X: np.ndarray, w: np.ndarray, rate: float, floor: An
     f = np.fft.rfftfreq(n, 1.0 / rate)
     a = rep  # the residual's flat level
     S = a + (floor(f) if floor is not None else 0.0)
-    print(f"    fd weights: S(1 Hz)/a {S[np.searchsorted(f, 1.0)] / a:.3g}, S(40 Hz)/a {S[np.searchsorted(f, 40.0)] / a:.3g}")
+    print(
+        f"    fd weights: S(1 Hz)/a {S[np.searchsorted(f, 1.0)] / a:.3g}, S(40 Hz)/a {S[np.searchsorted(f, 40.0)] / a:.3g}"
+    )
     wt = 1.0 / S
     Y = np.fft.rfft(w * y)
     Xf = np.fft.rfft(w[:, None] * X, axis=0)
@@ -101,7 +105,7 @@ EDGES = [0.5, 2, 5, 7.5, 10, 15, 20, 25, 30, 40, 50]
 
 def bands(f: np.ndarray, *series: np.ndarray) -> list[list[float]]:
     out = []
-    for lo, hi in zip(EDGES[:-1], EDGES[1:], strict=True):
+    for lo, hi in itertools.pairwise(EDGES):
         s = (f >= lo) & (f < hi)
         out.append([float(x[s].mean()) if s.any() else float("nan") for x in series])
     return out
@@ -149,14 +153,18 @@ def main(argv: list[str] | None = None) -> int:
     _, p_rest = welch(rest - rest.mean(), fs=rate, nperseg=nper)
     _, c_qr = csd(q_rows - q_rows.mean(), rest - rest.mean(), fs=rate, nperseg=nper)
     fl = base["floor"](f) if base["floor"] is not None else np.zeros_like(f)
-    fw, pw, kw, a0, cut = noise._whole_band(f, p_res, band, base["floor"])
-    print(f"rows {rate:g} Hz, flat a0 {a0:.4g}, floor passes it at {fw[cut] if cut < len(fw) else None} Hz; "
-          f"rows kept {base['keep'].mean():.3f}")
+    fw, _pw, _kw, a0, cut = noise._whole_band(f, p_res, band, base["floor"])
+    print(
+        f"rows {rate:g} Hz, flat a0 {a0:.4g}, floor passes it at {fw[cut] if cut < len(fw) else None} Hz; "
+        f"rows kept {base['keep'].mean():.3f}"
+    )
     print("  band Hz    resid/a0  quant/a0  floor/a0  quant/floor  rest/a0  2Re(cross)/a0")
-    for (lo, hi), (r, qq, ff, rr, cc) in zip(zip(EDGES[:-1], EDGES[1:], strict=True),
+    for (lo, hi), (r, qq, ff, rr, cc) in zip(itertools.pairwise(EDGES),
                                               bands(f, p_res, p_q, fl, p_rest, 2 * c_qr.real), strict=True):  # fmt: skip
-        print(f"  {lo:4g}-{hi:<4g} {r / a0:9.3f} {qq / a0:9.3f} {ff / a0:9.3f} {qq / max(ff, 1e-300):11.3f} "
-              f"{rr / a0:8.3f} {cc / a0:9.3f}")
+        print(
+            f"  {lo:4g}-{hi:<4g} {r / a0:9.3f} {qq / a0:9.3f} {ff / a0:9.3f} {qq / max(ff, 1e-300):11.3f} "
+            f"{rr / a0:8.3f} {cc / a0:9.3f}"
+        )
     # the regressors' own quantisation (ω, sgn ω, Stribeck columns on the coarse speed) and the fit
     X_b, X_f = base["model"][0], fine["model"][0]
     if X_b.shape == X_f.shape:
@@ -167,7 +175,10 @@ def main(argv: list[str] | None = None) -> int:
         for j in range(X_b.shape[1]):
             parts[f"  col{j}"] = w * ((X_b[:, j] - X_f[:, j]) * theta[j])
         parts["fine resid"] = w * fine["resid"] if len(fine["resid"]) == len(w) else np.zeros_like(w)
-        print("  part /a0 by band: " + " ".join(f"{lo:g}-{hi:g}" for lo, hi in zip(EDGES[:-1], EDGES[1:], strict=True)))
+        print(
+            "  part /a0 by band: "
+            + " ".join(f"{lo:g}-{hi:g}" for lo, hi in itertools.pairwise(EDGES))
+        )
         for name, x in parts.items():
             _, px = welch(x - x.mean(), fs=rate, nperseg=nper)
             print(f"  {name:12s} " + " ".join(f"{b[0] / a0:.3f}" for b in bands(f, px)))
@@ -199,19 +210,43 @@ def main(argv: list[str] | None = None) -> int:
             r = np.where(kb, without_levels(prep, kb, y_b - Xu @ th, Xu, base["model"][1]), 0.0)
             rep2 = noise.analyse(w * r, rate, 1.0, band, base["floor"])
             _, pr = welch(w * r, fs=rate, nperseg=nper)
-            print(f"  colour p with u shifted {shifts}: {rep2.colour_p:.3g} (τ {rep2.tau_s * 1e3:.1f} ms); /a0 by band "
-                  + " ".join(f"{b[0] / a0:.2f}" for b in bands(f, pr)))
+            print(
+                f"  colour p with u shifted {shifts}: {rep2.colour_p:.3g} (τ {rep2.tau_s * 1e3:.1f} ms); /a0 by band "
+                + " ".join(f"{b[0] / a0:.2f}" for b in bands(f, pr))
+            )
     if a.dump:
-        np.savez(a.dump, X_b=base["model"][0], X_f=fine["model"][0], y_b=prep.rows(prep.accel),
-                 y_f=fine["prep"].rows(fine["prep"].accel), ar=base["model"][1], ar_f=fine["model"][1], resid=resid, q=q_rows, w=w, keep=base["keep"], raw=base["raw"], fine=fine["resid"],
-                 fine_keep=fine["keep"], fine_raw=fine["raw"], u=prep.data.u, omega=prep.data.speed,
-                 omega_fine=fine["cols"]["omega"], trim=prep.trim, decim=prep.band.decim, a0=a0,
-                 nopwm=nopwm["resid"] if nopwm else np.zeros(0), nopwm_keep=nopwm["keep"] if nopwm else np.zeros(0))
+        np.savez(
+            a.dump,
+            X_b=base["model"][0],
+            X_f=fine["model"][0],
+            y_b=prep.rows(prep.accel),
+            y_f=fine["prep"].rows(fine["prep"].accel),
+            ar=base["model"][1],
+            ar_f=fine["model"][1],
+            resid=resid,
+            q=q_rows,
+            w=w,
+            keep=base["keep"],
+            raw=base["raw"],
+            fine=fine["resid"],
+            fine_keep=fine["keep"],
+            fine_raw=fine["raw"],
+            u=prep.data.u,
+            omega=prep.data.speed,
+            omega_fine=fine["cols"]["omega"],
+            trim=prep.trim,
+            decim=prep.band.decim,
+            a0=a0,
+            nopwm=nopwm["resid"] if nopwm else np.zeros(0),
+            nopwm_keep=nopwm["keep"] if nopwm else np.zeros(0),
+        )
     if nopwm is not None and len(nopwm["resid"]) == len(resid):
         d = resid - nopwm["resid"]
         _, p_d = welch(d - d.mean(), fs=rate, nperseg=nper)
-        print("  PWM's part left (resid − resid without PWM) /a0 by band: "
-              + " ".join(f"{x[0] / a0:.3f}" for x in bands(f, p_d)))
+        print(
+            "  PWM's part left (resid − resid without PWM) /a0 by band: "
+            + " ".join(f"{x[0] / a0:.3f}" for x in bands(f, p_d))
+        )
     return 0
 
 
