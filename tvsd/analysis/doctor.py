@@ -37,9 +37,9 @@ from tvsd.analysis import (
     excitation,
     heldout_sim,
     instrument,
-    quantisation,
     selection,
     sense,
+    spectral_fit,
     speed_source,
 )
 from tvsd.analysis import calibrate as C
@@ -197,7 +197,7 @@ def _diagnose(
     # rows ramped in and out at the gaps (a hard edge leaks its f⁴ power into the lowest bins).
     resid = instrument.residual(measured, design, verdict)
     model = (verdict.X, out.ar) if design is measured else None  # the levels refitted with the model
-    resid, floor = quantisation.gated(prep, out.keep, resid, rate_rows, model)
+    resid, floor = spectral_fit.refit(prep, out.keep, resid, rate_rows, model)
     J_noise = params["J"] if params["J"] > 0 else 1.0
     noise = analyse(resid, rate_rows, J_noise, prep.band.cutoff_hz, floor, rows_gain(prep))
     ranked = verdict.ranked
