@@ -37,6 +37,7 @@ from tvsd.analysis import (
     excitation,
     heldout_sim,
     instrument,
+    level_nuisance,
     quantisation,
     selection,
     sense,
@@ -141,6 +142,8 @@ def _diagnose(
     say("preparing the regression (band-limited rows, baseline and candidate columns)")
     prep = prepare(data, band)
     design = absorber.absorb(D.build(prep, data.offset_term, rotary, rules=rules))
+    if speed_source.KEY in data.meta:  # through the encoder: the drive's per-level error in the null
+        design.levels = level_nuisance.columns(prep)
     excitation.check_moving(prep, design.X.shape[1])  # a stuck drive: no excitation, exit 2
     if heldout is not None:  # judged on: a stuck held-out file would judge the model on noise
         excitation.check_moving(prepare(heldout, band), design.X.shape[1])
