@@ -56,8 +56,8 @@ def test_a_noisy_tach_is_replaced_by_the_encoders_count_difference(tmp_path: Pat
 
 def test_a_count_difference_an_angle_off_any_grid_or_a_good_speed_keeps_its_speed(tmp_path: Path) -> None:
     """ω already the encoder's difference: nothing to replace. An angle on no grid (a slow creep
-    added): nothing to snap to. A closed loop: its rules read the speed fed back. tvsd's own bench-dev files (φ
-    on a 4096-count grid, ω its period-mean speed): the count difference leaves ~5× their
+    added): nothing to snap to. A closed loop: its rules read the speed fed back. tvsd's own
+    bench-dev files (φ on a 4096-count grid, ω its period-mean speed): the count difference leaves ~5× their
     equation error, so ω stays (MARGIN needs it under ½)."""
     data = load(_write(tmp_path, _null("diff")), load_config())
     assert speed_source.choose(data, Band()) is data
