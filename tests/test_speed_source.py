@@ -108,3 +108,22 @@ def test_a_6x_imbalance_behind_a_noisy_tach_is_named(tmp_path: Path) -> None:
     out = json.loads(p.stdout)
     assert out["cause"] == "imbalance"
     assert any(w["code"] == "omega_from_encoder" for w in out.get("warnings", []))
+
+
+def test_a_recordings_own_omega_source_line_is_not_the_doctors_note(tmp_path: Path) -> None:
+    """`# omega_source:` is a recording's own optional header key (a daemon export describes its ω
+    with it). The doctor once kept its own note under that name, so every such file was reported
+    `omega_from_encoder` (and, on a voltage staircase, would have had the levels in its null)
+    though its speed was its own: a count-difference file with that line keeps its speed, no
+    warning, and the file's text is not the sentence's note."""
+    path = _write(tmp_path, _null("diff"))
+    lines = path.read_text().splitlines()
+    own = "the MCU's encoder frames at their sampling instants (as tvsctl export writes it)"
+    path.write_text("\n".join([lines[0], f"# omega_source: {own}", *lines[1:]]) + "\n")
+    data = load(path, load_config())
+    assert data.meta["omega_source"] == own
+    assert speed_source.KEY not in speed_source.choose(data, Band()).meta
+    p = subprocess.run([TVSCTL, "analyze", str(path), "--json"], capture_output=True, text=True, check=True)
+    out = json.loads(p.stdout)
+    assert not any(w["code"] == "omega_from_encoder" for w in out.get("warnings", []))
+    assert own not in out["summary"]

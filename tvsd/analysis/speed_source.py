@@ -35,7 +35,11 @@ from tvsd.analysis.prep import Band, prepare
 # residual's sampling cannot fake (≥ 2000 rows: its relative s.e. is ≤ 3 %), and a bench whose two
 # sensors are alike keeps the speed it recorded.
 MARGIN = 2.0
-KEY = "omega_source"  # Dataset.meta: why the speed was replaced
+# Dataset.meta: why the speed was replaced (the verdict's warning code). Not `omega_source`: that is
+# a recording's own optional header key (a daemon export's ω, README), which the doctor read as its
+# own note — every export got an `omega_from_encoder` warning. A file's own line of this key is
+# dropped by `choose`, so its presence means the doctor replaced the speed.
+KEY = "omega_from_encoder"
 # The printed angle must sit within this share of a count of the grid (7 significant digits of
 # a few hundred radians: 1e-4 rad, 0.13 of an 8192-count step), so rounding recovers each count.
 SNAP_TOL = 0.25
@@ -129,6 +133,8 @@ def compared(data: Dataset, band: Band) -> tuple[Dataset, float] | None:
 
 def choose(data: Dataset, band: Band) -> Dataset:
     """`data` with the speed that leaves the smaller equation error (see the module's note)."""
+    if KEY in data.meta:  # a file's own line of the doctor's key: not the doctor's note
+        data = replace(data, meta={k: v for k, v in data.meta.items() if k != KEY})
     found = compared(data, band)
     if found is None or not found[1] * MARGIN < 1.0:
         return data

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from tvsd.analysis import speed_source
 from tvsd.analysis.doctor import ALPHA, Diagnosis
 from tvsd.analysis.heldout_sim import effect_array
 from tvsd.analysis.lyapunov import Lyapunov, estimate
@@ -116,7 +117,7 @@ def sentence(dg: Diagnosis) -> str:
         text = f"{text} Note: {band}."
     if retimed := dg.data.meta.get("omega_timing"):
         text = f"{text} Note: {retimed}."
-    if source := dg.data.meta.get("omega_source"):
+    if source := dg.data.meta.get(speed_source.KEY):
         text = f"{text} Note: {source}."
     return text
 
@@ -256,7 +257,7 @@ def as_json(dg: Diagnosis, report: str | None = None) -> dict[str, Any]:
     if retimed := dg.data.meta.get("omega_timing"):
         # the doctor moved the recorded speed (dataset.load): any delay it names is after the move
         warnings.append({"code": "omega_retimed", "reason": retimed})
-    if source := dg.data.meta.get("omega_source"):
+    if source := dg.data.meta.get(speed_source.KEY):
         # the doctor differentiated the encoder, not the recorded speed (speed_source.choose)
         warnings.append({"code": "omega_from_encoder", "reason": source})
     if warnings:
