@@ -5,7 +5,8 @@
 cases.txt: every outsider case of seeds 12–14 the branch can reach (open loop, V or duty held on
 levels, a tach beside an encoder: `scripts/pwmlevel_cases.py`); switched.*.jsonl: those the
 encoder now reads, on integ3 (before: the tach), through the encoder without the levels in the
-null (outsidereff's measured state) and after; family.*.txt: 24 fresh nulls (seeds 15000+).
+null (outsidereff's measured state) and after; family.*.txt: fresh nulls (seeds 15000+: 24
+without the levels, 64 after).
 """
 
 from __future__ import annotations
@@ -68,8 +69,10 @@ def main() -> None:
     )
     k_sw = sum(after[n]["cause"] != "none" for n in sw) + fam["after"][0]
     k_nl = sum(nolev[n]["cause"] != "none" for n in sw) + fam["nolevels"][0]
-    n_sw = len(sw) + fam["after"][1]
-    print(f"pooled, nulls read through the encoder: no levels {cp(k_nl, n_sw)}, after {cp(k_sw, n_sw)}")
+    print(
+        "pooled, nulls read through the encoder: "
+        f"no levels {cp(k_nl, len(sw) + fam['nolevels'][1])}, after {cp(k_sw, len(sw) + fam['after'][1])}"
+    )
 
 
 if __name__ == "__main__":

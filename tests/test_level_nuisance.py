@@ -27,8 +27,9 @@ TVSCTL = str(Path(sys.executable).parent / "tvsctl")
 
 def test_the_levels_scatter_is_read_past_a_few_outlying_levels() -> None:
     """null_term's τ² (ratio × the noise's σ² = 0.01): 40 levels of 200 rows, each with a uniform
-    ±1 error (variance 1/3; the MAD reads a uniform's σ 1.28× wide, 0.55) and white noise of 0.1,
-    is read within 0.5–2× of 0.55 (the MAD of 40 values: ~25 % s.e. in σ, ±50 % in σ² at 2 s.e.);
+    ±1 error (variance 1/3; the MAD reads a uniform's σ 1.28× wide, 0.55, capped by the levels'
+    mean square, 0.33) and white noise of 0.1, is read within 0.5–2× of 0.55 (the MAD of 40 values:
+    ~25 % s.e. in σ, ±50 % in σ² at 2 s.e.);
     with a clip-like error of 30 on 4 of the levels it is read about as wide (the median ignores
     them; a mean square reads ~90). Without scatter the bridge's bound holds: gain² h²/3."""
     rng = np.random.default_rng(3)
@@ -99,4 +100,5 @@ def test_a_20x_delay_on_a_voltage_staircase_is_named_through_the_encoder(tmp_pat
     p = subprocess.run([TVSCTL, "analyze", str(path), "--json"], capture_output=True, text=True, check=True)
     out = json.loads(p.stdout)
     assert out["cause"] == "delay"
-    assert any(w["code"] == "omega_from_encoder" for w in out.get("warnings", []))
+    warn = next(w for w in out.get("warnings", []) if w["code"] == "omega_from_encoder")
+    assert "held levels" in warn["reason"]  # the levels in the null are said

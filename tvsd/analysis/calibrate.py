@@ -141,8 +141,6 @@ def test_all(design: Design, seed: int = 0, boot: int = BOOTSTRAP, alpha: float 
     root = vecs * np.sqrt(np.clip(vals, 0.0, None))
     P = root @ rng.standard_normal((gram.shape[0], boot))
     rss0_b = rng.chisquare(max(n - X.shape[1], 1), boot)
-    if lev is not None:  # the levels' scatter is in the baseline's residual too
-        rss0_b = rss0_b + lev.ratio(e0) * float(np.sum(lev.Cr**2))
     null = [np.full(boot, -math.inf) for _ in tested]
     for (lo, hi), who in zip(blocks, owner, strict=True):
         drss = np.einsum("ij,ij->j", P[lo:hi], P[lo:hi])

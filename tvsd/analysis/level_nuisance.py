@@ -38,9 +38,17 @@ from tvsd.analysis.prep import Prepared
 MAX_CELLS = 10_000_000
 PWM_BITS = 8  # the coarsest bridge assumed: ±2^(bits−1) steps over its supply
 SUPPLY_OVER_TOP = 2.0  # a voltage's undeclared supply, over its largest command
+NOTE = (
+    "each of the command's {} held levels may carry its own constant drive error (a PWM's step): "
+    "a random effect of the null, so a cause constant per level (a clip, a dead zone) must explain "
+    "more than such errors do"
+)
 MAD_SIGMA = 1.4826  # a normal's σ over its median absolute deviation
 MIN_SCATTER = 8  # levels' contrasts needed to read their scatter (a MAD of fewer is noise)
-RCOND = 1e-6  # the levels' estimates: directions of C_r this far below its largest are dropped
+# the levels' estimates: directions of C_r below this share of its largest singular value are
+# dropped (the contrasts the baseline nearly spans: their estimates are noise amplified 1/share×;
+# at 1e-6 a PRBS staircase read a scatter 10⁸× the bridge's and the resonance null collapsed)
+RCOND = 1e-2
 
 
 @dataclass(frozen=True)
@@ -93,6 +101,8 @@ class NullLevels:
     pinv: np.ndarray | None  # the levels' least-squares estimator (None: too few to read a scatter)
     noise_var: float  # the median of the levels' estimates' sampling variances
 
+    top: float = math.inf  # τ²/σ² if all of the levels' share of e₀ were scatter (mean square)
+
     def ratio(self, e: np.ndarray) -> float:
         """τ²/σ² on the residual e: the larger of the bound and the levels' robust scatter."""
         if self.pinv is None:
@@ -100,8 +110,10 @@ class NullLevels:
         return max(self.bound, self.scatter(self.pinv @ e))
 
     def scatter(self, delta: np.ndarray) -> float:
+        """The robust scatter of the levels' estimates, never above `top`: the levels cannot
+        scatter more than their whole share of the residual."""
         spread = MAD_SIGMA * float(np.median(np.abs(delta - np.median(delta))))
-        return (spread**2 - self.noise_var) / self.s2
+        return min((spread**2 - self.noise_var) / self.s2, self.top)
 
     def ratio_with(self, Wq: np.ndarray, e0: np.ndarray) -> float:
         """τ²/σ² once the block Wq (orthonormal, the baseline's span out) took its share of e₀:
@@ -137,6 +149,7 @@ def null_term(
     if k < MIN_SCATTER:
         return NullLevels(Cr, bound, s2, None, 0.0)
     # the levels' contrasts the baseline leaves (k of them): a direction it spans has no estimate
-    pinv = np.zeros((len(norms), len(e0)))
-    pinv[used] = np.linalg.pinv(Cr[:, used], rcond=RCOND)
-    return NullLevels(Cr, bound, s2, pinv[used], float(np.median(s2 / norms[used])))
+    pinv = np.linalg.pinv(Cr[:, used], rcond=RCOND)
+    noise_var = float(np.median(s2 * np.sum(pinv**2, axis=1)))  # each estimate's sampling variance
+    top = max(float(proj @ proj) / s2 - k, 0.0) / float(np.sum(norms))  # E|Q_Cᵀe|² = kσ² + τ²‖C_r‖²
+    return NullLevels(Cr, bound, s2, pinv, noise_var, top)
