@@ -67,6 +67,15 @@ def main() -> None:
         "fresh family (seeds 15000+, 8-bit, 8192 counts, tach, 20 s), read through the encoder: "
         f"no levels {cp(*fam['nolevels'])}, after {cp(*fam['after'])}"
     )
+    enc = {
+        x.split()[0] for x in (D / "family.after.txt").read_text().splitlines() if x.split()[4] == "encoder"
+    }
+    fb = [r for r in rows("family.before.jsonl").values() if r["name"] in enc]
+    named = [f"{r['name']} {r['cause']}" for r in fb if r["cause"] not in ("none", "ERROR")]
+    refused = [r["name"] for r in fb if r["cause"] == "ERROR"]
+    print(
+        f"  the same {len(fb)} on integ3 (tach): named {cp(len(named), len(fb))} {named}, refused {refused}"
+    )
     k_sw = sum(after[n]["cause"] != "none" for n in sw) + fam["after"][0]
     k_nl = sum(nolev[n]["cause"] != "none" for n in sw) + fam["nolevels"][0]
     print(
