@@ -56,9 +56,8 @@ def test_a_noisy_tach_is_replaced_by_the_encoders_count_difference(tmp_path: Pat
 
 def test_a_count_difference_an_angle_off_any_grid_or_a_good_speed_keeps_its_speed(tmp_path: Path) -> None:
     """ω already the encoder's difference: nothing to replace. An angle on no grid (a slow creep
-    added): nothing to snap to. A voltage staircase (o12103's null): a bridge's per-level error
-    would show. A closed loop: its rules read the speed fed back. tvsd's own bench-dev files (φ
-    on a 4096-count grid, ω its period-mean speed): the count difference leaves ~5× their
+    added): nothing to snap to. A closed loop: its rules read the speed fed back. tvsd's own
+    bench-dev files (φ on a 4096-count grid, ω its period-mean speed): the count difference leaves ~5× their
     equation error, so ω stays (MARGIN needs it under ½)."""
     data = load(_write(tmp_path, _null("diff")), load_config())
     assert speed_source.choose(data, Band()) is data
@@ -66,8 +65,6 @@ def test_a_count_difference_an_angle_off_any_grid_or_a_good_speed_keeps_its_spee
     meta = {k: v for k, v in tach.meta.items() if k != "encoder_counts_per_rev"}
     creep = 0.45 * (2 * math.pi / 2000) * tach.t / tach.t[-1]  # to 0.45 count: past SNAP_TOL (¼)
     off_grid = replace(tach, position=tach.position + creep, meta=meta)
-    bridge = load(_write(tmp_path, _null("tach", 12103)), load_config())  # a V staircase: a PWM's levels
-    assert speed_source.choose(bridge, Band()) is bridge
     assert speed_source.counts_step(off_grid) is None
     assert speed_source.choose(off_grid, Band()) is off_grid
     closed = replace(tach, refs={"omega_ref": tach.u})  # the closed loop's rules keep their speed
@@ -75,17 +72,17 @@ def test_a_count_difference_an_angle_off_any_grid_or_a_good_speed_keeps_its_spee
     for path in [BENCH_DEV / n for n in ("d00.csv", "d05.csv")] if BENCH_DEV is not None else []:
         dev = load(path, load_config())
         found = speed_source.compared(dev, Band())
-        assert found is None or found[1] > 1.0  # None: a voltage staircase, not compared
+        assert found is None or found[1] > 1.0
         assert speed_source.choose(dev, Band()) is dev
 
 
 def test_a_voltage_on_levels_at_500_hz_counts_the_rows_the_doctor_has(tmp_path: Path) -> None:
-    """The PWM guard asks command_levels.usable_levels whether u is held on levels, with the rows
-    the doctor's own level check (without_levels) sees (review5 found them apart while a 500 Hz
-    file was decimated ×2 and the guard counted ×4; that decimation was reverted). 40 levels in
-    10⁴ samples at 500 Hz: levels to both, so the speed is kept. The same file in N·m is
-    compared: the levels, not the data, are what keeps the speed."""
-    from tvsd.analysis import command_levels
+    """A voltage held on levels is compared, its levels carried by the null
+    (tvsd.analysis.level_nuisance) with the rows the doctor's own level check (without_levels)
+    sees (review5 found them apart while a 500 Hz file was decimated ×2 and a guard counted ×4).
+    40 levels in 10⁴ samples at 500 Hz: levels to both; past level_nuisance.MAX_CELLS the speed is
+    kept (the block would be too large to carry)."""
+    from tvsd.analysis import command_levels, level_nuisance
     from tvsd.analysis.prep import prepare
 
     s = _null("tach")
@@ -93,10 +90,13 @@ def test_a_voltage_on_levels_at_500_hz_counts_the_rows_the_doctor_has(tmp_path: 
     data = load(_write(tmp_path, s), load_config())
     stair = np.repeat(np.random.default_rng(1).uniform(-1, 1, 40), math.ceil(len(data.u) / 40))
     volts = replace(data, u=stair[: len(data.u)], u_unit="V")
-    rows = len(prepare(volts, Band()).rows(volts.u))
+    prep = prepare(volts, Band())
+    rows = len(prep.rows(volts.u))
     assert command_levels.usable_levels(volts.u, False, rows) is not None  # the doctor sees levels
-    assert speed_source.compared(replace(volts, u_unit="N*m"), Band()) is not None
-    assert speed_source.compared(volts, Band()) is None
+    levels = level_nuisance.columns(prep)
+    assert levels is not None and levels.columns.shape == (rows, 40)
+    assert speed_source.compared(volts, Band()) is not None
+    assert level_nuisance.fits(volts, rows) and not level_nuisance.fits(volts, level_nuisance.MAX_CELLS // 39)
 
 
 @pytest.mark.slow

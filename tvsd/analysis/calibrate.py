@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tvsd.analysis import level_nuisance
 from tvsd.analysis.design import Design, Option
 from tvsd.analysis.gls import ar_filter, orth, whiten
 from tvsd.analysis.linescan import RES_BAND, block_floor, excitation_rows, line_scan, refine_frequency
@@ -97,6 +98,12 @@ def test_all(design: Design, seed: int = 0, boot: int = BOOTSTRAP, alpha: float 
     Q0, _ = np.linalg.qr(X)
     e0 = y - Q0 @ (Q0.T @ y)
     rss0 = float(e0 @ e0)
+    # A per-level error of the drive (tvsd.analysis.level_nuisance): a random effect of the null.
+    lev = None
+    if design.levels is not None:
+        beta = np.linalg.lstsq(X, y, rcond=None)[0]  # the input gain: a₀ + a₁ (design.build's first two)
+        lev = level_nuisance.null_term(design.levels, float(beta[0] + beta[1]), a, keep, Q0, e0, X.shape[1])
+    on_levels: list[np.ndarray] = []  # each block's projection of the levels' indicators
     tested: list[Tested] = []
     blocks: list[tuple[int, int]] = []  # each option's columns in the stacked basis G
     owner: list[int] = []  # which tested cause each block belongs to
@@ -110,6 +117,8 @@ def test_all(design: Design, seed: int = 0, boot: int = BOOTSTRAP, alpha: float 
             if Wq.shape[1] == 0:
                 continue
             G_parts.append(Wq)
+            if lev is not None:  # the levels' scatter this block's null carries (with it fitted)
+                on_levels.append(math.sqrt(lev.ratio_with(Wq, e0)) * (Wq.T @ lev.Cr))
             blocks.append((col, col + Wq.shape[1]))
             col += Wq.shape[1]
             owner.append(len(tested))
@@ -125,6 +134,9 @@ def test_all(design: Design, seed: int = 0, boot: int = BOOTSTRAP, alpha: float 
     # blocks at once are N(0, GᵀG): drawn directly, B draws cost nothing next to the rows.
     rng = np.random.default_rng(seed)
     gram = null_gram(G_parts, e0, basis=Q0)  # takes the blocks (not a stacked copy) and empties the list
+    if on_levels:
+        M = np.vstack(on_levels)
+        gram += M @ M.T
     vals, vecs = np.linalg.eigh(gram)
     root = vecs * np.sqrt(np.clip(vals, 0.0, None))
     P = root @ rng.standard_normal((gram.shape[0], boot))

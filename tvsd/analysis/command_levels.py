@@ -109,6 +109,11 @@ def _pieces(prep: Prepared, levels: np.ndarray) -> list[tuple[int, int, np.ndarr
     return pieces
 
 
+def pieces(prep: Prepared, levels: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
+    """`_pieces`: (level, first row, band-filtered indicator rows) per cluster of a level's samples."""
+    return _pieces(prep, levels)
+
+
 def without_levels(
     prep: Prepared,
     keep: np.ndarray,

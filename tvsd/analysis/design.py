@@ -23,11 +23,15 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tvsd.analysis.prep import Prepared
 from tvsd.analysis.rules import DEFAULT, Rules
+
+if TYPE_CHECKING:
+    from tvsd.analysis.level_nuisance import Levels
 
 MAX_COGGING_ORDER = 24
 MAX_DELAY_S = 0.03
@@ -59,6 +63,9 @@ class Design:
     options: dict[str, list[Option]] = field(default_factory=dict)
     back_emf: bool = True
     rules: Rules = DEFAULT  # the doctor's switchable rules (tvsd.analysis.rules)
+    # the command's held levels whose per-level constant error is a random effect of the null
+    # (tvsd.analysis.level_nuisance, read by tvsd.analysis.calibrate); None: none
+    levels: Levels | None = None
 
 
 def _shift(u: np.ndarray, samples: int) -> np.ndarray:

@@ -37,6 +37,7 @@ from tvsd.analysis import (
     excitation,
     heldout_sim,
     instrument,
+    level_nuisance,
     selection,
     sense,
     spectral_fit,
@@ -142,6 +143,10 @@ def _diagnose(
     say("preparing the regression (band-limited rows, baseline and candidate columns)")
     prep = prepare(data, band)
     design = absorber.absorb(D.build(prep, data.offset_term, rotary, rules=rules))
+    if speed_source.KEY in data.meta:  # through the encoder: the drive's per-level error in the null
+        design.levels = level_nuisance.columns(prep)
+        if design.levels is not None:  # said with the speed's note (the verdict's warning)
+            data.meta[speed_source.KEY] += "; " + level_nuisance.NOTE.format(design.levels.columns.shape[1])
     excitation.check_moving(prep, design.X.shape[1])  # a stuck drive: no excitation, exit 2
     if heldout is not None:  # judged on: a stuck held-out file would judge the model on noise
         excitation.check_moving(prepare(heldout, band), design.X.shape[1])

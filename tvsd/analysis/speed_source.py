@@ -14,8 +14,9 @@ its residual power (the same rows, band and columns), a difference no sampling o
 by chance (the rows are thousands). The count step must be known (declared counts, or read from
 φ's own grid), so the speed is snapped to it and carries the quantisation floor that every count
 difference gets (tvsd.analysis.quantisation); without a grid nothing changes. A speed that is
-already a count difference, a closed loop, and a voltage or duty command held on levels (a PWM
-bridge's per-level error, see `compared`) keep theirs.
+already a count difference and a closed loop keep theirs. A voltage or duty command held on
+levels is read through the encoder too, with its bridge's per-level error carried by the null
+(tvsd.analysis.level_nuisance: through a quiet speed it was named on 3 of 14 such nulls without).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from tvsd.analysis import command_levels, count_grid
+from tvsd.analysis import count_grid, level_nuisance
 from tvsd.analysis import design as D
 from tvsd.analysis.dataset import Dataset
 from tvsd.analysis.prep import Band, prepare
@@ -107,11 +108,10 @@ def compared(data: Dataset, band: Band) -> tuple[Dataset, float] | None:
         # Closed loop: its rules (closed_checks, the instrumented fit) are calibrated on the speed
         # the controller fed back; through the encoder a 20× clip read `drift` (outsidereff.md).
         return None
-    rows = len(data.u) // band.decim  # the rows the doctor decimates to (without_levels' count)
-    if data.u_unit == "V" and command_levels.usable_levels(data.u, False, rows) is not None:
+    if not level_nuisance.fits(data, len(data.u) // band.decim):
         # A voltage (or duty) held on levels goes through a bridge that applies each level with
-        # its own constant error (PWM resolution), a term the model lacks: through a quiet speed
-        # it was named on 3 of 14 such nulls (8-bit bridges), 0 of 25 other nulls (outsidereff.md).
+        # its own constant error (PWM resolution): through a quiet speed it was named on 3 of 14
+        # such nulls unless the null carries it (level_nuisance), which costs a dense block.
         return None
     counted = count_grid.recorded_step(data.speed, data.sample_rate_hz, data.meta)
     if count_grid.STEP_KEY in data.meta or counted is not None:
