@@ -26,6 +26,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy.signal import lfilter
 
+from tvsd.analysis.gls import clear_memory
 from tvsd.analysis.prep import Prepared, antialias
 
 MAX_LEVEL_DOF = 0.02  # at most this share of the rows' degrees of freedom go to the levels
@@ -137,7 +138,9 @@ def without_levels(
         X, ar = np.zeros((n_rows, 0)), np.array([1.0])
     pieces = _pieces(prep, levels)
     p, K = X.shape[1], len(levels)
-    m = keep.astype(float)
+    # fitted on the rows whose whitening holds no row left out (`keep` may be cleared for a
+    # shorter AR than `ar`: tvsd.analysis.spectral_fit's floor whitening)
+    m = clear_memory(keep, len(ar) - 1).astype(float)
     Xw = (lfilter(ar, [1.0], X, axis=0) if p else X) * m[:, None]
     # whitening runs len(ar) - 1 rows past a piece's end (its filter's memory)
     spill = len(ar) - 1
