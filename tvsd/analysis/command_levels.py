@@ -26,7 +26,6 @@ from collections.abc import Callable
 import numpy as np
 from scipy.signal import lfilter
 
-from tvsd.analysis.gls import clear_memory
 from tvsd.analysis.prep import Prepared, antialias
 
 MAX_LEVEL_DOF = 0.02  # at most this share of the rows' degrees of freedom go to the levels
@@ -116,8 +115,11 @@ def without_levels(
     residual: np.ndarray,
     X: np.ndarray | None = None,
     ar: np.ndarray | None = None,
+    fit_rows: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The residual rows less what a constant per held command level explains (over `keep`).
+    """The residual rows less what a constant per held command level explains (over `keep`;
+    fitted on `fit_rows` when given: the rows of `keep` that a whitening `ar` longer than the one
+    `keep` was cleared for may use, gls.clear_memory).
     With the model's columns `X` and its whitening `ar`: the residual of the model extended by the
     levels, refitted as the doctor fits (GLS, whose residual is linear in y: the residual's own
     GLS fit on [X, C] is the change) — the fit took a share of the levels' error into its
@@ -138,9 +140,7 @@ def without_levels(
         X, ar = np.zeros((n_rows, 0)), np.array([1.0])
     pieces = _pieces(prep, levels)
     p, K = X.shape[1], len(levels)
-    # fitted on the rows whose whitening holds no row left out (`keep` may be cleared for a
-    # shorter AR than `ar`: tvsd.analysis.spectral_fit's floor whitening)
-    m = clear_memory(keep, len(ar) - 1).astype(float)
+    m = (keep if fit_rows is None else fit_rows).astype(float)
     Xw = (lfilter(ar, [1.0], X, axis=0) if p else X) * m[:, None]
     # whitening runs len(ar) - 1 rows past a piece's end (its filter's memory)
     spill = len(ar) - 1

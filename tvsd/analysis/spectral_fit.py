@@ -111,4 +111,4 @@ def refit(
     delta = gls(residual, Xe, ar, k).theta
     if not np.all(np.isfinite(delta)):
         return first, floor
-    return quantisation.gated(prep, keep, residual - Xe @ delta, rate, (Xe, ar))
+    return quantisation.gated(prep, keep, residual - Xe @ delta, rate, (Xe, ar), fit_rows=k)
