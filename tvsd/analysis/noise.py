@@ -32,6 +32,7 @@ from scipy.signal import get_window, welch
 from scipy.stats import chi2
 
 from tvsd.analysis.peak import PEAK_FLOOR_C, PEAK_Q, PEAK_WHITE_LR, fit_peak, fit_shapes, seen_height
+from tvsd.analysis.prep import ANTIALIAS_CORNER
 from tvsd.analysis.quantisation import Floor
 from tvsd.analysis.rowgain import Gain, peak_top
 
@@ -174,13 +175,23 @@ def _whole_band(
     """The band's bins, the known floor on them, a starting level for a (the floor taken off: it
     is not a's to fit), and the index of the first bin where the floor passes that flat level
     (the number of bins when it never does)."""
-    m = (f >= BAND_LOW_HZ) & (f <= 0.5 * band_hz)  # the band filter is flat to 1 % up to half its corner
+    m = (f >= BAND_LOW_HZ) & (f <= band_top(f, band_hz))
     fm, pm = f[m], p[m]
     known = np.zeros_like(fm) if floor is None else np.asarray(floor(fm), dtype=float)
     k = max(3, len(pm) // 10)
     a0 = max(float(np.median((pm - known)[:k])), 1e-3 * float(np.median(pm[:k])), 1e-300)
     above = np.nonzero(known > a0)[0]
     return fm, pm, known, a0, int(above[0]) if len(above) else len(fm)
+
+
+def band_top(f: np.ndarray, band_hz: float) -> float:
+    """The top of the band where the rows' filters are flat: half the band filter's corner (flat
+    to 1 % there), and no higher than the decimation's anti-alias corner (ANTIALIAS_CORNER of the
+    rows' Nyquist, f[-1]), which a file under 500 Hz puts below that half (100 Hz: the band's
+    half at 20 Hz, the rows' Nyquist 12.5 Hz, the roll-off from 10 Hz fitted as a low-pass, a
+    white residual's colour p 0; docs/measurements/review6.md). Without decimation the rows'
+    Nyquist is the file's, above 0.5·band_hz ≤ 0.2·fs, and this cap never binds."""
+    return min(0.5 * band_hz, ANTIALIAS_CORNER * float(f[-1])) if len(f) else 0.5 * band_hz
 
 
 def _slope(fm: np.ndarray, pm: np.ndarray, known: np.ndarray) -> float:
