@@ -255,7 +255,8 @@ def gated(
     with the model's columns and whitening, `model` = (X, ar), when given (on `fit_rows` of
     `keep`, when given: command_levels.without_levels)."""
     # a static drive error per held command level (a PWM's resolution) is not the vibration's colour
-    levelled = without_levels(prep, keep, residual, *(model or (None, None)), fit_rows=fit_rows)
+    X, ar = model if model is not None else (None, None)
+    levelled = without_levels(prep, keep, residual, X, ar, fit_rows=fit_rows)
     resid = np.where(keep, levelled, 0.0)
     if count_step(prep) is None and frames(prep) is None:
         return resid, None
