@@ -27,11 +27,18 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.optimize import minimize
 from scipy.signal import get_window, welch
 from scipy.stats import chi2
 
-from tvsd.analysis.peak import PEAK_FLOOR_C, PEAK_Q, PEAK_WHITE_LR, fit_peak, fit_shapes, seen_height
+from tvsd.analysis.peak import (
+    PEAK_FLOOR_C,
+    PEAK_Q,
+    PEAK_WHITE_LR,
+    fit_peak,
+    fit_shapes,
+    seen_height,
+    shape_fits,
+)
 from tvsd.analysis.prep import ANTIALIAS_CORNER
 from tvsd.analysis.quantisation import Floor
 from tvsd.analysis.rowgain import Gain, peak_top
@@ -102,17 +109,6 @@ def ljung_box(x: np.ndarray, lags: int = 20) -> float:
         rho = float(x[:-k] @ x[k:]) / denom
         q += rho * rho / (n - k)
     return float(chi2.sf(n * (n + 2) * q, lags))
-
-
-def _whittle(params: np.ndarray, f: np.ndarray, p: np.ndarray, coloured: bool, known: np.ndarray) -> float:
-    if np.any(np.abs(params) > 300):  # exp would overflow: outside any physical spectrum
-        return math.inf
-    a, b = math.exp(params[0]), math.exp(params[1])
-    s = a + b * f**2 + known
-    if coloured:
-        tau = math.exp(params[2])
-        s = a / (1 + (2 * math.pi * f * tau) ** 2) + b * f**2 + known
-    return float(np.sum(np.log(s) + p / s))
 
 
 def effective_segments(segments: int, nper: int) -> float:
@@ -217,23 +213,9 @@ def _in_band(
 
 
 def _colour_fits(fm: np.ndarray, pm: np.ndarray, known: np.ndarray, a0: float, b0: float) -> tuple[Any, Any]:
-    """Whittle fits of the white and the coloured shape (scipy OptimizeResults)."""
-    white = minimize(
-        _whittle, [math.log(a0), math.log(b0)], args=(fm, pm, False, known), method="Nelder-Mead"
-    )
-    best = None
-    for tau0 in (0.003, 0.01, 0.03, 0.1, 0.3):
-        r = minimize(
-            _whittle,
-            [math.log(a0), math.log(b0), math.log(tau0)],
-            args=(fm, pm, True, known),
-            method="Nelder-Mead",
-            options={"maxiter": 2000},
-        )
-        if best is None or r.fun < best.fun:
-            best = r
-    assert best is not None
-    return white, best
+    """Whittle fits of the white and the coloured shape (scipy OptimizeResults): peak.shape_fits
+    with no filters' gain."""
+    return shape_fits(fm, pm, known, 1.0, a0, b0)
 
 
 def spectrum_report(
