@@ -115,11 +115,8 @@ def without_levels(
     residual: np.ndarray,
     X: np.ndarray | None = None,
     ar: np.ndarray | None = None,
-    fit_rows: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The residual rows less what a constant per held command level explains (over `keep`;
-    fitted on `fit_rows` when given: the rows of `keep` that a whitening `ar` longer than the one
-    `keep` was cleared for may use, gls.clear_memory).
+    """The residual rows less what a constant per held command level explains (over `keep`).
     With the model's columns `X` and its whitening `ar`: the residual of the model extended by the
     levels, refitted as the doctor fits (GLS, whose residual is linear in y: the residual's own
     GLS fit on [X, C] is the change) — the fit took a share of the levels' error into its
@@ -140,7 +137,7 @@ def without_levels(
         X, ar = np.zeros((n_rows, 0)), np.array([1.0])
     pieces = _pieces(prep, levels)
     p, K = X.shape[1], len(levels)
-    m = (keep if fit_rows is None else fit_rows).astype(float)
+    m = keep.astype(float)
     Xw = (lfilter(ar, [1.0], X, axis=0) if p else X) * m[:, None]
     # whitening runs len(ar) - 1 rows past a piece's end (its filter's memory)
     spill = len(ar) - 1

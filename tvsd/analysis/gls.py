@@ -63,17 +63,6 @@ def ar_filter(r: np.ndarray, p: int) -> np.ndarray:
     return np.concatenate([[1.0], -phi])
 
 
-def clear_memory(keep: np.ndarray, order: int) -> np.ndarray:
-    """The rows of `keep` whose AR(order) whitening holds no row out of it (nor the record's start):
-    what a filter longer than the one `keep` was cleared for must fit on (as calibrate.test_all's)."""
-    mask = np.asarray(keep) > 0
-    out = mask.copy()
-    for lag in range(1, min(order, len(mask)) + 1):
-        out[lag:] &= mask[:-lag]
-    out[:order] = False
-    return out
-
-
 def whiten(x: np.ndarray, a: np.ndarray, keep: np.ndarray) -> np.ndarray:
     return sig_lfilter(a, [1.0], x, axis=0)[keep]
 

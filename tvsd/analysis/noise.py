@@ -187,7 +187,11 @@ def band_top(f: np.ndarray, band_hz: float) -> float:
     half at 20 Hz, the rows' Nyquist 12.5 Hz, the roll-off from 10 Hz fitted as a low-pass, a
     white residual's colour p 0; docs/measurements/review6.md). Without decimation the rows'
     Nyquist is the file's, above 0.5·band_hz ≤ 0.2·fs, and this cap never binds."""
-    return min(0.5 * band_hz, ANTIALIAS_CORNER * float(f[-1])) if len(f) else 0.5 * band_hz
+    if not len(f):
+        return 0.5 * band_hz
+    # the rows' rate is read off their times (1/median Δt): at 500 Hz the corner, 50 Hz, is the
+    # band's half to within rounding, and that rounding must not drop the 50 Hz bin
+    return min(0.5 * band_hz, ANTIALIAS_CORNER * float(f[-1]) * (1 + 1e-9))
 
 
 def _slope(fm: np.ndarray, pm: np.ndarray, known: np.ndarray) -> float:

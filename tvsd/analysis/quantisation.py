@@ -236,7 +236,6 @@ def gated(
     residual: np.ndarray,
     rate_hz: float,
     model: tuple[np.ndarray, np.ndarray] | None = None,
-    fit_rows: np.ndarray | None = None,
 ) -> tuple[np.ndarray, Floor | None]:
     """The residual rows the spectral tests see, and the quantisation's floor in them.
 
@@ -252,12 +251,9 @@ def gated(
     (their weights squared). Without a floor (a tachometer, tvsd's own speed: no f⁴ term) the
     rows are not ramped. Either way, in open loop, what a constant per held command level
     explains is taken out first (tvsd.analysis.command_levels: a PWM's per-level error), refitted
-    with the model's columns and whitening, `model` = (X, ar), when given (on `fit_rows` of
-    `keep`, when given: command_levels.without_levels)."""
+    with the model's columns and whitening, `model` = (X, ar), when given."""
     # a static drive error per held command level (a PWM's resolution) is not the vibration's colour
-    X, ar = model if model is not None else (None, None)
-    levelled = without_levels(prep, keep, residual, X, ar, fit_rows=fit_rows)
-    resid = np.where(keep, levelled, 0.0)
+    resid = np.where(keep, without_levels(prep, keep, residual, *(model or (None, None))), 0.0)
     if count_step(prep) is None and frames(prep) is None:
         return resid, None
     w = edge_taper(keep, rate_hz)

@@ -38,7 +38,7 @@ from scipy.signal import welch
 
 from tvsd.analysis import quantisation
 from tvsd.analysis.design import _shift
-from tvsd.analysis.gls import clear_memory, gls
+from tvsd.analysis.gls import gls
 from tvsd.analysis.noise import BAND_LOW_HZ, band_top
 from tvsd.analysis.prep import Prepared
 from tvsd.analysis.quantisation import Floor
@@ -103,13 +103,11 @@ def refit(
     if floor is not None:
         ar = floor_whitening(flat_level(first, rate, floor, prep.band.cutoff_hz), floor, rate)
     Xe = np.column_stack([X, command_taps(prep)])
-    # `keep` was cleared for the doctor's AR; the floor's is longer, and its memory must not reach
-    # the rows left out (the shaft stuck, where the model does not hold) nor the record's start
-    k = clear_memory(keep, len(ar) - 1)
+    k = keep > 0
     if not np.any(k) or not np.all(np.isfinite(Xe[k])):
         return first, floor
     # y − X·θ refitted: the residual's own GLS fit on the extended columns is the change (linear)
     delta = gls(residual, Xe, ar, k).theta
     if not np.all(np.isfinite(delta)):
         return first, floor
-    return quantisation.gated(prep, keep, residual - Xe @ delta, rate, (Xe, ar), fit_rows=k)
+    return quantisation.gated(prep, keep, residual - Xe @ delta, rate, (Xe, ar))
