@@ -121,3 +121,23 @@ def test_a_copy_more_of_rows_by_columns_is_measured_in_full(tmp_path):
     held = f"import runpy, sys\nimport numpy as np\nheld = np.ones({round(copy_mib * 2**17)})\n{analyze}"
     more = run_child([sys.executable, "-c", held], env, bench._IMPORT_DOCTOR)
     assert more.own_mib - plain.own_mib == pytest.approx(copy_mib, abs=1.0), (plain, more, copy_mib)
+
+
+def test_a_figure_the_child_did_not_report_is_unknown_not_zero():
+    """A measured program that leaves by os._exit skips the wrapper's atexit report of its peak
+    (VmHWM), as a kernel without a /proc field leaves it unread: the figure is NaN, which no
+    bound passes, not 0 MiB, which every upper bound does (review6.md)."""
+    import math
+
+    got = run_child([sys.executable, "-c", "import os; os._exit(0)"], {})
+    assert math.isnan(got.peak_rss_mib), got
+    assert got.base_anon_mib > 0 and got.own_mib >= 0, got
+
+
+def test_an_unreported_memory_figure_is_null_in_the_bench():
+    """bench_long's figures of a child that did not report them: null, not a ValueError from
+    round(NaN) ending `tvsctl bench` in a traceback."""
+    import math
+
+    assert bench._mib(math.nan, 0) is None and bench._mib(242.4, 0) == 242
+    assert bench._mib(55.86, 1) == 55.9

@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import tempfile
@@ -188,6 +189,14 @@ record(cfg, out, "steps", seconds, (parse_effect("deadzone:u0=0.8"),), seed=7)
 LONG_SIZES = ((60.0, 1000.0), (120.0, 2000.0))  # (seconds, Hz); 1 h at 1 and 2 kHz on request
 
 
+def _mib(x: float, digits: int) -> float | None:
+    """A memory figure rounded; None (JSON null) when the child did not report it (benchchild's
+    NaN: round(NaN) raises, and NaN is no JSON)."""
+    if not math.isfinite(x):
+        return None
+    return round(x) if digits == 0 else round(x, digits)
+
+
 def bench_long(
     sizes: tuple[tuple[float, float], ...] = LONG_SIZES, progress: Callable[[str], None] | None = None
 ) -> dict[str, Any]:
@@ -225,8 +234,8 @@ def bench_long(
             rec.unlink()
             out[f"{key}_wall_s"] = round(run.wall_s, 2)
             out[f"{key}_cpu_s"] = round(run.cpu_s, 2)
-            out[f"{key}_peak_rss_mib"] = round(run.peak_rss_mib)
-            out[f"{key}_mib_per_min"] = round((run.peak_rss_mib - memory.BASE_MIB) / (seconds / 60.0), 1)
-            out[f"{key}_doctor_mib"] = round(run.own_mib, 1)
-            out[f"{key}_base_anon_mib"] = round(run.base_anon_mib, 1)
+            out[f"{key}_peak_rss_mib"] = _mib(run.peak_rss_mib, 0)
+            out[f"{key}_mib_per_min"] = _mib((run.peak_rss_mib - memory.BASE_MIB) / (seconds / 60.0), 1)
+            out[f"{key}_doctor_mib"] = _mib(run.own_mib, 1)
+            out[f"{key}_base_anon_mib"] = _mib(run.base_anon_mib, 1)
     return out

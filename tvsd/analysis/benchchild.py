@@ -12,6 +12,7 @@ from then on: the rise above that base is what the measured code itself allocate
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 import tempfile
@@ -29,7 +30,7 @@ _WRAPPER = """
 import atexit, os, runpy, sys
 def _kib(key):
     with open('/proc/self/status') as f:
-        return next((ln.split()[1] for ln in f if ln.startswith(key + ':')), '0')
+        return next((ln.split()[1] for ln in f if ln.startswith(key + ':')), 'nan')
 fd, prelude, flag, what, *rest = int(sys.argv[1]), *sys.argv[2:]
 atexit.register(lambda: os.write(fd, f'hwm {_kib("VmHWM")}\\n'.encode()))
 if prelude:
@@ -52,8 +53,10 @@ class Child(NamedTuple):
 
     @property
     def own_mib(self) -> float:
-        """Anonymous memory the measured code took above the prelude's: what it allocated."""
-        return max(self.peak_anon_mib - self.base_anon_mib, 0.0)
+        """Anonymous memory the measured code took above the prelude's: what it allocated (NaN
+        when the child did not report its base)."""
+        own = self.peak_anon_mib - self.base_anon_mib
+        return max(own, 0.0) if math.isfinite(own) else math.nan
 
 
 def _anon_kib(pid: int) -> int:
@@ -99,15 +102,22 @@ def run_child(cmd: list[str], env: dict[str, str], prelude: str = "") -> Child:
     proc.returncode = os.waitstatus_to_exitcode(status)
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd[2:5])} … exited {proc.returncode}: {message.strip()[-300:]}")
-    figures = dict(line.split() for line in said.decode().splitlines() if line.count(" ") == 1)
-    base_kib = int(figures.get("base", "0"))
+    base_kib, hwm_kib = _figures(said)
     return Child(
         wall,
         ru.ru_utime + ru.ru_stime,
-        int(figures.get("hwm", "0")) / 1024.0,
-        max(peak_kib, base_kib) / 1024.0,
+        hwm_kib / 1024.0,
+        max(peak_kib, base_kib) / 1024.0 if math.isfinite(base_kib) else math.nan,
         base_kib / 1024.0,
     )
+
+
+def _figures(said: bytes) -> tuple[float, float]:
+    """(base, hwm) KiB as the child reported them; NaN for one it did not report (its measured
+    code left by os._exit, which skips atexit) or could not read (a kernel without RssAnon,
+    before 4.5): unknown, not 0 — a 0 read as a measured figure (`own_mib` 0)."""
+    figures = dict(line.split() for line in said.decode().splitlines() if line.count(" ") == 1)
+    return float(figures.get("base", "nan")), float(figures.get("hwm", "nan"))
 
 
 def _read_all(fd: int) -> bytes:

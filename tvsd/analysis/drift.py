@@ -18,10 +18,11 @@ bar, so a wandering parameter or a resonance that shifts a window's estimate doe
 
 Multiplicity: the decision scanned three parameters (R, kv, friction) and the windows test the one
 it chose, so the test's level is α/3 (Bonferroni). The trend must also have the drift block's sign.
-Where no instrumented confirmation follows (open loop), the slope must also pass t at the
-decision's own α/3 (`accepted`): the gate's bootstrap assumes the baseline right, so against a
-misfit that varies with the command (a PWM quantiser's gain over the levels a window visits) the
-windows' trend is the only evidence that time, not the command, moved the parameter.
+Where no instrumented confirmation follows (open loop; a closed loop whose reference is not
+excited, or the opt-in 2SLS design: verdict.name_cause's `instrumented` None), the slope must
+also pass t at the decision's own α/3 (`accepted`): the gate's bootstrap assumes the baseline
+right, so against a misfit that varies with the command (a PWM quantiser's gain over the levels a
+window visits) the windows' trend is the only evidence that time, not the command, moved the parameter.
 
 A step is not a drift: the best single change point through the window estimates (two levels)
 must not fit them significantly better than the line (its lack of fit Q_step against Q_line, in
@@ -186,10 +187,10 @@ def agrees(design: D.Design, out: C.Outcome, parameter: str, sign: float) -> Tre
     return trend(c, e, s, sign)
 
 
-# The windows' trend standing alone (ls_alone; in open loop, `confirmed(alone=True)`) is judged at
-# the decision's own false-alarm level (calibrate.ALPHA), not at ALPHA: the trend test's 5 % is
-# lenient because it confirms a decision already taken; without a confirmation on the
-# instruments, the trend is that second evidence.
+# The windows' trend standing alone (ls_alone; without a confirmation, `confirmed(alone=True)`)
+# is judged at the decision's own false-alarm level (calibrate.ALPHA), not at ALPHA: the trend
+# test's 5 % is lenient because it confirms a decision already taken; without a confirmation on
+# the instruments, the trend is that second evidence.
 ALONE_ALPHA = C.ALPHA
 
 
@@ -279,7 +280,8 @@ def confirmed(design: D.Design, out: C.Outcome, parameter: str, sign: float, alo
     """The windowed trend test (`agrees`), or the per-window refits before it (the design's
     rules.drift_trend_test off).
 
-    `alone` (open loop: no instrumented confirmation follows): the windows' slope must also pass
+    `alone` (no instrumented confirmation follows: open loop, and a closed loop without an excited
+    reference or by 2SLS): the windows' slope must also pass
     t at the decision's α/3 (`beyond`, ALONE_ALPHA), as in closed loop without power (ls_alone).
     The gate's bootstrap assumes the baseline right; a time-invariant misfit that the command's
     levels make differ from window to window passes it, and then the windows' trend is the only

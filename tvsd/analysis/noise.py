@@ -27,11 +27,19 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.optimize import minimize
 from scipy.signal import get_window, welch
 from scipy.stats import chi2
 
-from tvsd.analysis.peak import PEAK_FLOOR_C, PEAK_Q, PEAK_WHITE_LR, fit_peak, fit_shapes, seen_height
+from tvsd.analysis.peak import (
+    PEAK_FLOOR_C,
+    PEAK_Q,
+    PEAK_WHITE_LR,
+    fit_peak,
+    fit_shapes,
+    seen_height,
+    shape_fits,
+)
+from tvsd.analysis.prep import ANTIALIAS_CORNER
 from tvsd.analysis.quantisation import Floor
 from tvsd.analysis.rowgain import Gain, peak_top
 
@@ -103,17 +111,6 @@ def ljung_box(x: np.ndarray, lags: int = 20) -> float:
     return float(chi2.sf(n * (n + 2) * q, lags))
 
 
-def _whittle(params: np.ndarray, f: np.ndarray, p: np.ndarray, coloured: bool, known: np.ndarray) -> float:
-    if np.any(np.abs(params) > 300):  # exp would overflow: outside any physical spectrum
-        return math.inf
-    a, b = math.exp(params[0]), math.exp(params[1])
-    s = a + b * f**2 + known
-    if coloured:
-        tau = math.exp(params[2])
-        s = a / (1 + (2 * math.pi * f * tau) ** 2) + b * f**2 + known
-    return float(np.sum(np.log(s) + p / s))
-
-
 def effective_segments(segments: int, nper: int) -> float:
     """The number of independent segments a Whittle sum over a Hann, 50 %-overlapped Welch
     spectrum of `segments` segments of `nper` samples is worth, for a smooth spectral shape.
@@ -174,13 +171,27 @@ def _whole_band(
     """The band's bins, the known floor on them, a starting level for a (the floor taken off: it
     is not a's to fit), and the index of the first bin where the floor passes that flat level
     (the number of bins when it never does)."""
-    m = (f >= BAND_LOW_HZ) & (f <= 0.5 * band_hz)  # the band filter is flat to 1 % up to half its corner
+    m = (f >= BAND_LOW_HZ) & (f <= band_top(f, band_hz))
     fm, pm = f[m], p[m]
     known = np.zeros_like(fm) if floor is None else np.asarray(floor(fm), dtype=float)
     k = max(3, len(pm) // 10)
     a0 = max(float(np.median((pm - known)[:k])), 1e-3 * float(np.median(pm[:k])), 1e-300)
     above = np.nonzero(known > a0)[0]
     return fm, pm, known, a0, int(above[0]) if len(above) else len(fm)
+
+
+def band_top(f: np.ndarray, band_hz: float) -> float:
+    """The top of the band where the rows' filters are flat: half the band filter's corner (flat
+    to 1 % there), and no higher than the decimation's anti-alias corner (ANTIALIAS_CORNER of the
+    rows' Nyquist, f[-1]), which a file under 500 Hz puts below that half (100 Hz: the band's
+    half at 20 Hz, the rows' Nyquist 12.5 Hz, the roll-off from 10 Hz fitted as a low-pass, a
+    white residual's colour p 0; docs/measurements/review6.md). Without decimation the rows'
+    Nyquist is the file's, above 0.5·band_hz ≤ 0.2·fs, and this cap never binds."""
+    if not len(f):
+        return 0.5 * band_hz
+    # the rows' rate is read off their times (1/median Δt): at 500 Hz the corner, 50 Hz, is the
+    # band's half to within rounding, and that rounding must not drop the 50 Hz bin
+    return min(0.5 * band_hz, ANTIALIAS_CORNER * float(f[-1]) * (1 + 1e-9))
 
 
 def _slope(fm: np.ndarray, pm: np.ndarray, known: np.ndarray) -> float:
@@ -206,23 +217,9 @@ def _in_band(
 
 
 def _colour_fits(fm: np.ndarray, pm: np.ndarray, known: np.ndarray, a0: float, b0: float) -> tuple[Any, Any]:
-    """Whittle fits of the white and the coloured shape (scipy OptimizeResults)."""
-    white = minimize(
-        _whittle, [math.log(a0), math.log(b0)], args=(fm, pm, False, known), method="Nelder-Mead"
-    )
-    best = None
-    for tau0 in (0.003, 0.01, 0.03, 0.1, 0.3):
-        r = minimize(
-            _whittle,
-            [math.log(a0), math.log(b0), math.log(tau0)],
-            args=(fm, pm, True, known),
-            method="Nelder-Mead",
-            options={"maxiter": 2000},
-        )
-        if best is None or r.fun < best.fun:
-            best = r
-    assert best is not None
-    return white, best
+    """Whittle fits of the white and the coloured shape (scipy OptimizeResults): peak.shape_fits
+    with no filters' gain."""
+    return shape_fits(fm, pm, known, 1.0, a0, b0)
 
 
 def spectrum_report(

@@ -98,9 +98,10 @@ def fit_peak(
 
 
 def _whittle_shape(
-    params: np.ndarray, f: np.ndarray, p: np.ndarray, known: np.ndarray, gain: np.ndarray
+    params: np.ndarray, f: np.ndarray, p: np.ndarray, known: np.ndarray, gain: np.ndarray | float
 ) -> float:
-    """noise._whittle's flat + f² (+ low-pass with a third parameter) shapes through `gain`."""
+    """Whittle's negative log-likelihood of the flat + f² (+ a low-pass with a third parameter,
+    τ = e^params[2]) shape through `gain`, plus the known floor."""
     if np.any(np.abs(params) > 300):  # exp would overflow: outside any physical spectrum
         return math.inf
     a, b = math.exp(params[0]), math.exp(params[1])
@@ -112,10 +113,19 @@ def _whittle_shape(
 def fit_shapes(
     fm: np.ndarray, pm: np.ndarray, known: np.ndarray, gain: np.ndarray, a0: float
 ) -> tuple[Any, Any, float]:
-    """The peak's alternatives through the rows' filters (the white and the low-pass shape, as
-    noise._colour_fits fits them without filters), and the f² term's start."""
+    """The peak's alternatives through the rows' filters (the white and the low-pass shape,
+    `shape_fits`), and the f² term's start."""
     k = max(3, len(pm) // 10)
     b0 = max(float(np.median(((pm - known) / gain)[-k:])) / fm[-1] ** 2, 1e-30)
+    return (*shape_fits(fm, pm, known, gain, a0, b0), b0)
+
+
+def shape_fits(
+    fm: np.ndarray, pm: np.ndarray, known: np.ndarray, gain: np.ndarray | float, a0: float, b0: float
+) -> tuple[Any, Any]:
+    """Whittle fits of the white (flat + f²) and the low-pass shape through `gain` (1: the colour
+    test's, tvsd.analysis.noise) plus the known floor, from the levels a0, b0 (scipy
+    OptimizeResults)."""
     white = minimize(
         _whittle_shape, [math.log(a0), math.log(b0)], args=(fm, pm, known, gain), method="Nelder-Mead"
     )
@@ -131,7 +141,7 @@ def fit_shapes(
         if best is None or r.fun < best.fun:
             best = r
     assert best is not None
-    return white, best, b0
+    return white, best
 
 
 def seen_height(fw: np.ndarray, f0: float, q: float, height: float, enbw: float) -> float:

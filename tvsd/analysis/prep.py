@@ -32,9 +32,13 @@ class Band:
 EMPS_BAND = Band(cutoff_hz=100.0, decim=10)
 
 
+# the decimation's anti-alias filter's corner, as a share of the rows' Nyquist frequency
+ANTIALIAS_CORNER = 0.8
+
+
 @cache
 def antialias(q: int) -> tuple[np.ndarray, np.ndarray]:
-    b, a = cheby1(8, 0.05, 0.8 / q)
+    b, a = cheby1(8, 0.05, ANTIALIAS_CORNER / q)
     return np.asarray(b), np.asarray(a)
 
 

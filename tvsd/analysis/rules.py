@@ -63,7 +63,8 @@ class Rules:
     # scatter, the level's t at the decision's 1 %). False: refused, the rule before
     # (matrix_closed's `lsap0`; docs/measurements/closed14.md)
     asym_ls_alone: bool = True
-    # drift.confirmed: where no instrumented confirmation follows (open loop), the windows' slope
+    # drift.confirmed: where no instrumented confirmation follows (open loop; closed loop without an
+    # excited reference, or by 2SLS), the windows' slope
     # at the decision's α/3 (t > 4.12 at 8 df), not the trend test's 5 %/3 (3.02). False: the
     # rule before (outsider null o14042 named drift, t −3.55; docs/measurements/drift14.md)
     drift_alone_alpha: bool = True

@@ -39,6 +39,7 @@ from scipy.signal import welch
 from tvsd.analysis import quantisation
 from tvsd.analysis.design import _shift
 from tvsd.analysis.gls import gls
+from tvsd.analysis.noise import BAND_LOW_HZ, band_top
 from tvsd.analysis.prep import Prepared
 from tvsd.analysis.quantisation import Floor
 
@@ -62,7 +63,7 @@ def flat_level(resid: np.ndarray, rate: float, floor: Floor | None, band_hz: flo
     floor taken off (tvsd.analysis.noise._whole_band)."""
     nper = min(len(resid), int(SEGMENT_S * rate))
     f, p = welch(resid - resid.mean(), fs=rate, nperseg=nper)
-    m = (f >= 0.5) & (f <= 0.5 * band_hz)
+    m = (f >= BAND_LOW_HZ) & (f <= band_top(f, band_hz))
     fm, pm = f[m], p[m]
     if len(fm) < 3:
         return 0.0

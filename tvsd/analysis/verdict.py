@@ -173,7 +173,8 @@ def name_cause(
             effect.update(_translate(t.cause, effect, th, design, J, b))
         ok = above and not dissolved
         if ok and t.cause == "drift" and t.coef is not None:
-            # No instrumented confirmation follows (open loop; the opt-in 2SLS design): the windows'
+            # No instrumented confirmation follows (open loop; a closed loop whose reference is not
+            # excited, closed_checks.instrumented_check; the opt-in 2SLS design): the windows'
             # trend is the drift's only evidence beyond the gate, judged at the decision's α
             # (drift.confirmed).
             alone = instrumented is None
