@@ -16,6 +16,10 @@ from typing import Any
 
 import outsider_bench as ob
 
+from tvsd.analysis.dataset import load
+from tvsd.analysis.prep import Band, Prepared, prepare
+from tvsd.config import load_config
+
 CLASSES: dict[str, dict[str, Any]] = {
     "coarse": dict(unit="V", fs=2000.0, seconds=30.0, excitation="staircase", cpr=256, pwm_bits=8),
     "prbs500": dict(unit="V", fs=500.0, seconds=60.0, excitation="prbs", cpr=8192, pwm_bits=10),
@@ -76,3 +80,13 @@ def run_one(s: ob.Spec, tmp: Path) -> dict[str, Any]:
     n = d.noise
     return {"cause": d.cause, "colour_p": n.colour_p, "tau_s": n.tau_s, "floor_hz": n.floor_cut_hz,
             "band": n.colour_band_hz, "wall_s": round(time.time() - t0, 2)}  # fmt: skip
+
+
+def coarse_encoder_rows(tmp_path: Path, closed: bool) -> Prepared:
+    """Outsider case 14083 redrawn for 20 s on a declared 256-count encoder difference (open or
+    closed loop), written as a recording and prepared as the doctor prepares its rows."""
+    s = ob.draw(14083, "none", 0.0, closed=closed)
+    s.seconds, s.sensor["cpr"], s.sensor["omega"], s.sensor["declare_cpr"] = 20.0, 256, "diff", True
+    path = tmp_path / ("closed.csv" if closed else "open.csv")
+    ob.write(path, s, ob.make(s))
+    return prepare(load(path, load_config()), Band())

@@ -14,15 +14,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import outsider_bench as ob
 import outsider_classes as fam
 import pytest
 from scipy.stats import binom
 
 from tvsd.analysis import quantisation, spectral_fit
-from tvsd.analysis.dataset import load
-from tvsd.analysis.prep import Band, prepare
-from tvsd.config import load_config
 
 
 def _colour_alarms(cls: str, seed: int, n: int, tmp: Path) -> list[tuple[int, float]]:
@@ -70,11 +66,7 @@ def test_the_floor_whitening_whitens_flat_plus_floor() -> None:
 def test_closed_loop_keeps_the_doctors_fit(tmp_path: Path) -> None:
     """With a recorded reference the command answers the noise: the residual is
     `quantisation.gated`'s, unchanged (an outsider closed-loop file on a 256-count encoder)."""
-    s = ob.draw(14083, "none", 0.0, closed=True)
-    s.seconds, s.sensor["cpr"], s.sensor["omega"], s.sensor["declare_cpr"] = 20.0, 256, "diff", True
-    path = tmp_path / "closed.csv"
-    ob.write(path, s, ob.make(s))
-    prep = prepare(load(path, load_config()), Band())
+    prep = fam.coarse_encoder_rows(tmp_path, closed=True)
     n = len(prep.t_rows)
     g = np.random.default_rng(1)
     keep = np.ones(n, dtype=bool)

@@ -5,13 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import outsider_bench as ob
+import outsider_classes as fam
 import pytest
 
 from tvsd.analysis import spectral_fit
-from tvsd.analysis.dataset import load
 from tvsd.analysis.prep import Band, prepare
-from tvsd.config import load_config
 
 
 def _kept_for(mask: np.ndarray, order: int) -> np.ndarray:
@@ -37,11 +35,7 @@ def test_the_refit_ignores_the_rows_the_doctor_left_out(tmp_path: Path) -> None:
     filter's memory. Changed there by 1e3× the residual's scale, the rows kept may move only by
     the solve's rounding (relative 1e-9: the normal equations' condition number squared, ~1e6,
     times float64's 1e-16 is 1e-10)."""
-    s = ob.draw(14083, "none", 0.0, closed=False)
-    s.seconds, s.sensor["cpr"], s.sensor["omega"], s.sensor["declare_cpr"] = 20.0, 256, "diff", True
-    path = tmp_path / "open.csv"
-    ob.write(path, s, ob.make(s))
-    prep = prepare(load(path, load_config()), Band())
+    prep = fam.coarse_encoder_rows(tmp_path, closed=False)
     n = len(prep.t_rows)
     g = np.random.default_rng(3)
     moving = np.ones(n, dtype=bool)
