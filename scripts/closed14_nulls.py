@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from scipy.stats import beta
+from tvsd.analysis.matrix import clopper_pearson
 
 
 def config(kind: str, path: Path) -> Any:
@@ -89,12 +89,6 @@ def run(out: Path, kind: str, files: list[str]) -> None:
         with out.open("a") as f:
             f.write(json.dumps(row) + "\n")
         print(json.dumps({"name": path.stem, "off": off["found"], "on": on["found"]}), flush=True)
-
-
-def clopper_pearson(k: int, n: int) -> tuple[float, float]:
-    lo = 0.0 if k == 0 else float(beta.ppf(0.025, k, n - k + 1))
-    hi = 1.0 if k == n else float(beta.ppf(0.975, k + 1, n - k))
-    return lo, hi
 
 
 def summary(pattern: str) -> None:

@@ -23,7 +23,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.stats import beta
+
+from tvsd.analysis.matrix import clopper_pearson
 
 
 def reference_shape(data: Any) -> dict[str, float]:
@@ -118,11 +119,6 @@ def outsider(out: Path, folder: Path, shard: str, names: list[str]) -> None:
         paths.append(str(path))
     files(out, "0/1", paths)
 
-
-def clopper_pearson(k: int, n: int) -> tuple[float, float]:
-    lo = 0.0 if k == 0 else float(beta.ppf(0.025, k, n - k + 1))
-    hi = 1.0 if k == n else float(beta.ppf(0.975, k + 1, n - k))
-    return lo, hi
 
 
 def summary(pattern: str) -> None:

@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from scipy.stats import beta
+from tvsd.analysis.matrix import clopper_pearson
 
 NULLS91 = Path("/work/wt/nulls91")
 
@@ -204,12 +204,6 @@ def second_filters(out: Path, shard: str, most: int) -> None:
                 row.pop("slope", None)
         with out.open("a") as f:
             f.write(json.dumps(row) + "\n")
-
-
-def clopper_pearson(k: int, n: int) -> tuple[float, float]:
-    lo = 0.0 if k == 0 else float(beta.ppf(0.025, k, n - k + 1))
-    hi = 1.0 if k == n else float(beta.ppf(0.975, k + 1, n - k))
-    return lo, hi
 
 
 def summary(pattern: str) -> None:
