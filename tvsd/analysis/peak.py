@@ -56,6 +56,17 @@ def _whittle_peak(
     return value if math.isfinite(value) else math.inf
 
 
+def _lowest(fun: Any, points: list[list[float]], args: tuple[Any, ...], maxiter: int) -> Any:
+    """Nelder–Mead from each start point; the result of least `fun` (the first on a tie)."""
+    best = None
+    for x0 in points:
+        r = minimize(fun, x0, args=args, method="Nelder-Mead", options={"maxiter": maxiter})
+        if best is None or r.fun < best.fun:
+            best = r
+    assert best is not None
+    return best
+
+
 def fit_peak(
     fm: np.ndarray,
     pm: np.ndarray,
@@ -72,26 +83,18 @@ def fit_peak(
     starts = [int(np.argmax(pm / floor))]
     if np.any(known > 0):  # over the floor a single bin's scatter is large: also the 5-bin excess
         starts.append(int(np.argmax(np.convolve(pm / floor, np.ones(5) / 5, mode="same"))))
-    best = None
-    for k in dict.fromkeys(starts):
-        for q0 in (3.0, 10.0, 30.0):
-            start = [
-                math.log(a0),
-                math.log(b0),
-                math.log(max(pm[k] - floor[k], 1e-3 * floor[k]) / gain[k]),
-                math.log(fm[k]),
-                math.log(q0),
-            ]
-            r = minimize(
-                _whittle_peak,
-                start,
-                args=(fm, pm, known, gain),
-                method="Nelder-Mead",
-                options={"maxiter": 3000},
-            )
-            if best is None or r.fun < best.fun:
-                best = r
-    assert best is not None
+    points = [
+        [
+            math.log(a0),
+            math.log(b0),
+            math.log(max(pm[k] - floor[k], 1e-3 * floor[k]) / gain[k]),
+            math.log(fm[k]),
+            math.log(q0),
+        ]
+        for k in dict.fromkeys(starts)
+        for q0 in (3.0, 10.0, 30.0)
+    ]
+    best = _lowest(_whittle_peak, points, (fm, pm, known, gain), 3000)
     _, _, A, f0, q = (math.exp(x) for x in best.x)
     power = A * math.pi * f0 / (2 * q)  # ∫ of the Lorentzian over f (narrow-peak limit)
     return float(best.fun), f0, q, power, A
@@ -129,19 +132,8 @@ def shape_fits(
     white = minimize(
         _whittle_shape, [math.log(a0), math.log(b0)], args=(fm, pm, known, gain), method="Nelder-Mead"
     )
-    best = None
-    for tau0 in (0.003, 0.01, 0.03, 0.1, 0.3):
-        r = minimize(
-            _whittle_shape,
-            [math.log(a0), math.log(b0), math.log(tau0)],
-            args=(fm, pm, known, gain),
-            method="Nelder-Mead",
-            options={"maxiter": 2000},
-        )
-        if best is None or r.fun < best.fun:
-            best = r
-    assert best is not None
-    return white, best
+    points = [[math.log(a0), math.log(b0), math.log(tau0)] for tau0 in (0.003, 0.01, 0.03, 0.1, 0.3)]
+    return white, _lowest(_whittle_shape, points, (fm, pm, known, gain), 2000)
 
 
 def seen_height(fw: np.ndarray, f0: float, q: float, height: float, enbw: float) -> float:
