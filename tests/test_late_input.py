@@ -16,6 +16,7 @@ stalls (a stall of the fake MCU's thread is itself late input, and resumes).
 from __future__ import annotations
 
 import asyncio
+import math
 import os
 import threading
 import time
@@ -24,6 +25,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import replace
 
+import pytest
 from conftest import until, wait_for
 from fake_mcu_side import answer_handshake, read_host_frames
 
@@ -31,6 +33,7 @@ from tvsd.config import load_config
 from tvsd.control.runner import LoopFault, Runner
 from tvsd.daemon.drive_link import DriveLink
 from tvsd.daemon.frame_chain import DUE_RATE_MARGIN, FrameChain
+from tvsd.errors import DeviceError
 from tvsd.hw.mcu.framing import FrameDecoder, encode_frame
 from tvsd.hw.mcu.placement import StateSample
 from tvsd.hw.mcu.spec import CONTROL_TICK_HZ, load_spec
@@ -48,7 +51,8 @@ class PacedMcu:
     each stamped with the tick it was sampled at (as the firmware's tick ISR does), answers to
     identify, heartbeat and stats. `late(s, drop)`: for `s` every frame it makes is held back and
     then written at once (the tty's input delayed); `drop` frames of them are never sent (their
-    SEQs and ticks skipped: lost). `dead()`: it sends nothing more."""
+    SEQs and ticks skipped: lost). `dead()`: it sends nothing more. While `streaming` is clear it
+    answers the handshake but sends no state frame (a booting or foreign firmware)."""
 
     def __init__(self, master: int, state_hz: float) -> None:
         self.master = master
@@ -61,6 +65,8 @@ class PacedMcu:
         self.drop: range = range(0)
         self.sent_states = 0
         self.is_dead = False
+        self.streaming = threading.Event()
+        self.streaming.set()
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, name="paced-mcu", daemon=True)
 
@@ -83,6 +89,8 @@ class PacedMcu:
         k = 0
         while not self.stop.is_set():
             due = int((time.monotonic() - self.t0) * HZ / self.period_ticks)
+            if not self.streaming.is_set():
+                k = due  # not sent at all: no SEQ taken
             while k < due:
                 k += 1
                 with self.lock:
@@ -112,8 +120,11 @@ class PacedMcu:
 
 
 @asynccontextmanager
-async def drive_on_pty(runner: Runner) -> AsyncIterator[tuple[DriveLink, PacedMcu, list[bool]]]:
-    """The daemon's DriveLink (hardware backend, the shipped times but the bound) on a pty."""
+async def drive_on_pty(
+    runner: Runner, states_after_s: float = 0.0
+) -> AsyncIterator[tuple[DriveLink, PacedMcu, list[bool]]]:
+    """The daemon's DriveLink (hardware backend, the shipped times but the bound) on a pty; the
+    MCU's state frames begin `states_after_s` after the link starts to open."""
     master, slave = os.openpty()
     tty.setraw(slave)
     cfg = load_config()
@@ -129,13 +140,18 @@ async def drive_on_pty(runner: Runner) -> AsyncIterator[tuple[DriveLink, PacedMc
     mcu.thread.start()
     await until(lambda: runner.is_running, 60.0, "the control kernel running")
     try:
+        if states_after_s > 0:
+            mcu.streaming.clear()
+            begin = loop.call_later(states_after_s, mcu.streaming.set)
         await drive.start()
-        runner.position(0.0)  # commanded: the stale check applies
+        runner.position(0.0)  # commanded at once, as an RPC may be: the stale check applies
         n = mcu.sent_states
         await until(lambda: mcu.sent_states > n + 100, 5.0, "50 ms of state frames")
         assert not runner.fault, runner.fault_code
         yield drive, mcu, links
     finally:
+        if states_after_s > 0:
+            begin.cancel()
         mcu.stop.set()
         runner.idle()
         await drive.close()
@@ -199,6 +215,33 @@ def test_silence_beyond_the_bound_latches_stale_and_the_link_is_lost(runner: Run
             assert runner.fault_after_measurement_s > STALE_S
             assert runner.latched_after_measurement_s > BOUND_MS / 1e3
             await until(lambda: False in links, 5.0, "the link's loss")
+
+    asyncio.run(main())
+
+
+def test_start_returns_once_a_state_frame_is_in_so_a_first_command_cannot_latch(runner: Runner) -> None:
+    """The MCU answers the handshake but its state frames begin 0.3 s later (a slow boot, or a
+    loaded machine's first frame late): start returns only once one reached the control thread,
+    and a command given at once holds no fault (drive_on_pty asserts it after 100 frames). Before,
+    start returned at the handshake, and a command before the first frame latched STALE at once
+    (the kernel has no last frame to hold from): 1 of ~40 CIs, on test_late_input's set-up."""
+
+    async def main() -> None:
+        async with drive_on_pty(runner, states_after_s=0.3) as (drive, _mcu, links):
+            assert math.isfinite(drive.last_state_host)
+            assert False not in links
+
+    asyncio.run(main())
+
+
+def test_an_mcu_that_sends_no_state_frame_fails_the_start_with_one_clear_error(runner: Runner) -> None:
+    """No state frame within mcu.link_lost_ms after the handshake: start raises DeviceError
+    saying what was missing and what to do, and leaves no link open."""
+
+    async def main() -> None:
+        with pytest.raises(DeviceError, match=r"sent no state frame within 1000 ms \(mcu\.link_lost_ms\)"):
+            async with drive_on_pty(runner, states_after_s=60.0):
+                pass
 
     asyncio.run(main())
 

@@ -185,10 +185,32 @@ class DriveLink:
             link.kernel_heartbeats(True)
         link.send_config(watchdog_ms=m.watchdog_ms, state_div=self.state_div, max_on_ms=0)
         self.runner.stale_after(m.link_timeout_ms * 1e-3, m.link_lost_ms * 1e-3 if m.late_input_hold else 0.0)
+        await self._await_first_state(link)
         self.steppers = Steppers(link)
         for axis in ("phi", "gamma"):
             self.steppers.home(axis)
         self._stats_task = asyncio.create_task(self._poll_firmware_stats(link), name="mcu-stats")
+
+    async def _await_first_state(self, link: McuLink) -> None:
+        """Return once a state frame has reached the control thread. A command given before any
+        measurement latches STALE at once (tvsd.control.hold: there is no last frame to hold
+        from), and on a loaded machine the first frame can reach the host after the handshake's
+        answers do (CI of 0efd0f5: test_late_input's first command latched STALE). The daemon
+        accepts commands only after start, so start waits: at most mcu.link_lost_ms, the bound
+        within which no frame at all means the link is lost."""
+        bound_ms = self.cfg.mcu.link_lost_ms
+        deadline = time.monotonic() + bound_ms * 1e-3
+        while math.isnan(self.last_state_host):  # set after the frame is handed to the runner
+            if time.monotonic() > deadline:
+                self.link = None
+                await link.close()
+                raise DeviceError(
+                    f"the MCU on {link.settings.port} answered the handshake but sent no state frame "
+                    f"within {bound_ms:g} ms (mcu.link_lost_ms): its firmware does not stream the "
+                    "encoder (another build?) or the port's input is lost: flash the image built from this "
+                    "checkout (make -C firmware; hil/README.md), or raise mcu.link_lost_ms on a slow link"
+                )
+            await asyncio.sleep(0.002)
 
     async def _poll_firmware_stats(self, link: McuLink) -> None:
         """The firmware's own counters for the status (its watchdog expiries among them: a fault
