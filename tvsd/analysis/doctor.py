@@ -184,7 +184,7 @@ def _diagnose(
     rigid = gls(design.y, absorber.rigid(design, design.X)[0], out.ar, out.keep)
     params, err = physical(design, rigid.theta, rigid.cov, data.b_u, data.b_omega)
     say("naming the cause and checking it makes physical sense")
-    closed_ls = "omega_ref" in data.refs and design is measured
+    closed_ls = data.closed_loop and design is measured
     verdict = name_cause(
         design,
         out,
