@@ -302,6 +302,7 @@ def test_a_tach_drive_that_rests_most_of_the_record_is_not_refused(tmp_path, cou
     X.check_moving(prep, 8)
 
 
+@pytest.mark.slow  # the outsider bench draws 20 s at 1 kHz: 10 s idle, 27 s on a loaded machine
 def test_a_shaft_slipping_under_its_breakaway_read_through_the_encoder_is_refused(tmp_path, capsys):
     """Outsider null o15230 (pwmlevel's family: a duty PRBS whose four levels, ±0.3 and ±3.1 V,
     all stay under the drawn plant's 4.0 V breakaway; 20 s behind a noisy tach with an 8192-count
