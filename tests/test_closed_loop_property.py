@@ -90,7 +90,7 @@ def _judged(path: Path, cfg: Config) -> tuple[str, dict[str, float]]:
     return dg.cause, {s.cause: float(s.z) for s in dg.ranked}
 
 
-@pytest.mark.slow  # three 30 s closed-loop analyses and two SIL recordings: ~60 s on a loaded machine
+@pytest.mark.slow  # three 30 s closed-loop analyses, two SIL recordings: 8 s idle, ~60 s loaded
 def test_a_phi_ref_only_recording_is_judged_as_the_closed_loop_it_is(tmp_path: Path) -> None:
     """Matrix null 910212 (seed 91's closed family) without its omega_ref: `delay` before (read
     as open loop, least squares on the law's answer to the noise), `none` now, as with omega_ref.
