@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import numpy as np
+import outsider_bench as ob
 import pytest
 import quantisation_nulls as qn
 
@@ -299,3 +300,24 @@ def test_a_tach_drive_that_rests_most_of_the_record_is_not_refused(tmp_path, cou
     speed = np.where(t < 24.0, 20 * np.sin(2 * np.pi * 0.5 * t), 0.0)
     prep = _tach_file(tmp_path / "rests.csv", speed, 0.0, counts, seed=7)
     X.check_moving(prep, 8)
+
+
+@pytest.mark.slow  # the outsider bench draws 20 s at 1 kHz: 10 s idle, 27 s on a loaded machine
+def test_a_shaft_slipping_under_its_breakaway_read_through_the_encoder_is_refused(tmp_path, capsys):
+    """Outsider null o15230 (pwmlevel's family: a duty PRBS whose four levels, ±0.3 and ±3.1 V,
+    all stay under the drawn plant's 4.0 V breakaway; 20 s behind a noisy tach with an 8192-count
+    encoder): the shaft creeps in slips the disturbance gives it, 0.2 counts per sample on average.
+    The doctor reads it through the encoder (speed_source), where 2219 of 4988 rows stand clear
+    of the count floor, and it was named `deadzone` (z 32: pre-sliding friction near zero speed
+    fits a dead zone's columns); the recorded tach stands clear of its noise in none of them. The
+    swap is no evidence that the command moved the shaft: refused, exit 2, one line."""
+    s = ob.draw(15230, "none", 0.0, closed=False)
+    s.sensor.update(omega="tach", cpr=8192, declare_cpr=True)  # as test_level_nuisance's _family
+    s.drive["pwm_bits"] = 8
+    s.seconds = 20.0
+    path = tmp_path / "o15230.csv"
+    ob.write(path, s, ob.make(s))
+    assert main(["analyze", str(path), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no excitation" in err and "recorded speed" in err, err
+    assert "0 of its 4988" in err, err  # the tach: no row clear of its noise

@@ -152,7 +152,7 @@ def peak_in_plant(noise: NoiseReport, plant: NoiseReport | None) -> bool:
 
 
 def closed_loop_note(data: Dataset) -> str | None:
-    if "omega_ref" not in data.refs or instrument.reference_moves(data):
+    if not data.closed_loop or instrument.reference_moves(data):
         return None
     return (
         "closed loop with a constant reference: dead zone, saturation and delay are not testable "

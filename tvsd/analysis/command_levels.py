@@ -135,7 +135,7 @@ def without_levels(
     10-min staircase of 256 levels (docs/measurements/levelsfast.md)."""
     u = np.asarray(prep.data.u, dtype=float)
     n_rows = len(residual)
-    levels = usable_levels(u, "omega_ref" in prep.data.refs, n_rows)
+    levels = usable_levels(u, prep.data.closed_loop, n_rows)
     if levels is None or not keep.any():
         return residual
     if X is None or ar is None:

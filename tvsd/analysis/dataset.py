@@ -56,7 +56,7 @@ class Dataset:
     meta: dict[str, str] = field(default_factory=dict)
     path: Path | None = None
     u_unit: str = "V"
-    refs: dict[str, np.ndarray] = field(default_factory=dict)  # closed-loop reference columns
+    refs: dict[str, np.ndarray] = field(default_factory=dict)  # reference columns, u_exc: closed_loop
     excitation_hz: tuple[float, ...] = ()  # the excitation's declared lines (`# excitation_hz:`)
     # rows tvsctl export filled by interpolation across a stall (its `gap` column = 1), or None
     filled: np.ndarray | None = None
@@ -66,6 +66,28 @@ class Dataset:
     @property
     def duration_s(self) -> float:
         return float(self.t[-1] - self.t[0])
+
+    @property
+    def closed_loop(self) -> bool:
+        """Whether a controller closed the loop around the recording: it holds the controller's
+        reference, of the speed (`omega_ref`) or of the angle (`phi_ref`; DESIGN.md allows
+        either). A position loop is a closed loop as a speed loop is: its command is a function of
+        the measured angle, so it answers the noise, least squares on it is biased, and the
+        reference is the instrument (tvsd.analysis.instrument). Every closed-loop rule asks this."""
+        return "omega_ref" in self.refs or "phi_ref" in self.refs
+
+    @property
+    def speed_reference(self) -> np.ndarray | None:
+        """The loop's speed reference, the instrument's signal: `omega_ref`, or a position loop's
+        `phi_ref` differentiated (ω_ref = dφ_ref/dt, as `tvsctl sim record` writes its omega_ref;
+        a function of the reference alone, so as exogenous as the reference). None in open loop."""
+        if "omega_ref" in self.refs:
+            return self.refs["omega_ref"]
+        phi_ref = self.refs.get("phi_ref")
+        if phi_ref is None or len(phi_ref) < 2:
+            return None
+        # on the uniform grid (DESIGN.md): np.gradient over t's rounding reads a hold at 1e-14 rad/s
+        return np.gradient(np.asarray(phi_ref, dtype=float), 1.0 / self.sample_rate_hz)
 
     def slice(self, start: int, stop: int, suffix: str) -> Dataset:
         return Dataset(

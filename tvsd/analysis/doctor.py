@@ -134,6 +134,7 @@ def _diagnose(
         sense.check_recording(heldout)
     band = band or Band()
     # A noisy speed column beside an encoder: the count difference when it fits far better.
+    recorded, recorded_heldout = data, heldout
     chosen = speed_source.choose(data, band)
     if chosen is not data:
         data = chosen
@@ -148,8 +149,12 @@ def _diagnose(
         if design.levels is not None:  # said with the speed's note (the verdict's warning)
             data.meta[speed_source.KEY] += "; " + level_nuisance.NOTE.format(design.levels.columns.shape[1])
     excitation.check_moving(prep, design.X.shape[1])  # a stuck drive: no excitation, exit 2
+    if data is not recorded:  # read through the encoder: the recording's own speed must move too
+        excitation.check_recorded(prepare(recorded, band), prep, design.X.shape[1])
     if heldout is not None:  # judged on: a stuck held-out file would judge the model on noise
         excitation.check_moving(prepare(heldout, band), design.X.shape[1])
+        if heldout is not recorded_heldout and recorded_heldout is not None:
+            excitation.check_recorded(prepare(recorded_heldout, band), prep, design.X.shape[1])
     measured = design
     if iv and instrument.excited(data):  # closed loop, excited: 2SLS (opt-in,
         # docs/measurements/doctor-closed.md)
@@ -184,7 +189,7 @@ def _diagnose(
     rigid = gls(design.y, absorber.rigid(design, design.X)[0], out.ar, out.keep)
     params, err = physical(design, rigid.theta, rigid.cov, data.b_u, data.b_omega)
     say("naming the cause and checking it makes physical sense")
-    closed_ls = "omega_ref" in data.refs and design is measured
+    closed_ls = data.closed_loop and design is measured
     verdict = name_cause(
         design,
         out,

@@ -23,6 +23,17 @@ of the speed's integral is compared with φ's, and where the speed says the shaf
 than the angle's noise (or its count) reaches, φ must have too, in at least half of them. The
 stretches are long (a twentieth of the record) so that a slow shaft with a coarse encoder climbs
 many counts in each; a closed-loop scan at a constant speed turns φ in every one.
+
+When the doctor reads the speed through the encoder's count difference in place of the recorded
+one (tvsd.analysis.speed_source: it leaves less equation error), the motion must also stand clear
+of the recorded speed's own noise (`check_recorded`). The swap sharpens the fit of a drive that
+moved; it is no evidence that the command moved it. A shaft held under its breakaway creeps in
+slips the disturbance gives it: an 8192-count encoder reads them (a few counts now and then, 0.2
+counts per sample on average), the tachometer beside it none (outsider null o15230: a duty PRBS
+whose four levels all stay under the static friction; through the encoder pre-sliding friction
+near zero speed fitted a dead zone's columns, z 32). Every other file the swap reads through the
+encoder (146 of seeds 12–17 and the level-held families) has its recorded speed clear of its
+noise in ≥ 15× the rows needed (docs/measurements/closedprop.md).
 """
 
 from __future__ import annotations
@@ -175,3 +186,22 @@ def check_moving(prep: Prepared, columns: int) -> None:
             f"regression rows (at least {need} needed): the drive did not break away or turns too "
             "slowly to be seen; excite it harder or longer"
         )
+
+
+def check_recorded(recorded: Prepared, prep: Prepared, columns: int) -> None:
+    """DataFileError (exit 2) when the recorded speed (`recorded`) moves clear of its own noise in
+    fewer than ROWS_PER_COLUMN·columns rows though the encoder's count difference (`prep`, the
+    speed the doctor would fit through) does: see the module's note."""
+    moving, rows, sigma = moving_rows(recorded)
+    need = ROWS_PER_COLUMN * columns
+    if moving >= need:
+        return
+    d = recorded.data
+    enc, _, _ = moving_rows(prep)
+    raise DataFileError(
+        f"{d.path or d.name}: no excitation: the recorded speed column stands clear of its noise "
+        f"({CLEAR:g} × {sigma:.3g} {d.units.speed}, from the data) in only {moving} of its {rows} "
+        f"regression rows (at least {need} needed); the encoder's count difference moves in {enc}, "
+        "a shaft that creeps or slips without breaking away (moved by the disturbance, not the "
+        "command); excite it harder or longer"
+    )

@@ -82,7 +82,7 @@ def confirmation_baseline(
     from tvsd.analysis import design as D
     from tvsd.analysis.prep import Band, prepare
 
-    if "omega_ref" not in data.refs or not instrument.excited(data):
+    if not data.closed_loop or not instrument.excited(data):
         return None
     prep = prepare(data, Band())
     rotary = data.units.axis == "rotary"

@@ -67,7 +67,7 @@ EXCITATION = "u_exc"  # the recording's column of the voltage identify added aft
 def reference_moves(data: Dataset) -> bool:
     """Whether the file holds a closed-loop reference that varies (steps, multisine) after the
     first fifth (a spin-up alone does not identify the drive's command map)."""
-    ref = data.refs.get("omega_ref")
+    ref = data.speed_reference
     if ref is None or len(ref) < 10:
         return False
     steady = ref[len(ref) // 5 :]
@@ -79,14 +79,16 @@ def excited(data: Dataset) -> bool:
     """Whether the file carries an exogenous excitation to instrument with: a moving reference, or
     identify's voltage excitation (u_exc) that is not all zero."""
     exc = data.refs.get(EXCITATION)
-    moving_exc = exc is not None and "omega_ref" in data.refs and float(np.std(exc)) > 0
+    moving_exc = exc is not None and data.closed_loop and float(np.std(exc)) > 0
     return reference_moves(data) or moving_exc
 
 
 def bank(data: Dataset) -> np.ndarray:
-    """The instrument signal: ω_ref (its slips, where it is the derivative of a slipping φ_ref,
-    clipped to its range)."""
-    w_ref = data.refs["omega_ref"]
+    """The instrument signal: ω_ref, a position loop's dφ_ref/dt (Dataset.speed_reference; its
+    slips, where it is the derivative of a slipping φ_ref, clipped to its range)."""
+    w_ref = data.speed_reference
+    if w_ref is None:
+        raise ValueError(f"{data.name}: open loop, no reference to instrument with")
     return np.clip(w_ref, *np.quantile(w_ref, [0.001, 0.999]))
 
 

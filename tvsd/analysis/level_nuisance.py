@@ -59,7 +59,7 @@ class Levels:
 
 def held(data: Dataset, n_rows: int) -> np.ndarray | None:
     """The held levels of an open-loop voltage (or duty) command, None otherwise."""
-    if data.u_unit != "V" or "omega_ref" in data.refs or "phi_ref" in data.refs:
+    if data.u_unit != "V" or data.closed_loop:
         return None
     return command_levels.usable_levels(data.u, False, n_rows)
 

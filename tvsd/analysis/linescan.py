@@ -103,7 +103,7 @@ def excitation_rows(design: Design) -> list[np.ndarray]:
     command). At a varying speed sin φ has no line: nothing is left out. Cogging's orders are
     not: 24 of them left out the band's low part at scanning speeds (case 45's mode sits on
     the 15th), and a mode there is still weighed against cogging's own test."""
-    ref = design.prep.data.refs.get("omega_ref")
+    ref = design.prep.data.speed_reference
     closed = ref is not None and design.rules.lines_of_reference  # off: the command's (ls0, ls1)
     out = [design.prep.band_rows(ref)] if ref is not None and closed else [design.X[:, 0]]
     out += [opt.block[:, 0] for opt in design.options.get("imbalance", [])]

@@ -97,7 +97,7 @@ def reference_scan(design: D.Design) -> np.ndarray | None:
     identify's PRBS on the command, the reference multisine's lines sink under it there, and the
     SIL daemon's export named `resonance` at 6.80 Hz, the multisine's 34th harmonic of 0.2 Hz,
     as a third cause. None: no reference column."""
-    ref = design.prep.data.refs.get("omega_ref")
+    ref = design.prep.data.speed_reference
     if ref is None:
         return None
     prep = design.prep

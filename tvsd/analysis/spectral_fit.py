@@ -97,7 +97,7 @@ def refit(
     redone on the model's columns and the command's FIR_TAPS, whitened, with a floor, by the flat
     level plus the floor (else the doctor's AR)."""
     first, floor = quantisation.gated(prep, keep, residual, rate, model)
-    if model is None or "omega_ref" in prep.data.refs:  # closed loop: the command answers the noise
+    if model is None or prep.data.closed_loop:  # closed loop: the command answers the noise
         return first, floor
     X, ar = model
     if floor is not None:

@@ -104,7 +104,7 @@ def compared(data: Dataset, band: Band) -> tuple[Dataset, float] | None:
     both move in), or None when there is no encoder grid to compare with."""
     if data.speed is None or not data.position_measured or data.units.axis != "rotary":
         return None
-    if "omega_ref" in data.refs or "phi_ref" in data.refs:
+    if data.closed_loop:
         # Closed loop: its rules (closed_checks, the instrumented fit) are calibrated on the speed
         # the controller fed back; through the encoder a 20× clip read `drift` (outsidereff.md).
         return None
