@@ -102,16 +102,19 @@ def local_level(pgram: np.ndarray, width: int) -> np.ndarray:
     m = pgram.shape[-1]
     nb = max(m // width, 1)
     edges = np.linspace(0, m, nb + 1).astype(int)
-    med = np.stack(
-        [np.median(pgram[..., lo:hi], axis=-1) for lo, hi in itertools.pairwise(edges)], axis=-1
-    ) / math.log(2.0)
-    if nb == 1:
-        return np.broadcast_to(med, pgram.shape).copy()
+    out = np.empty_like(pgram)
+    med = [
+        np.median(pgram[..., lo:hi], axis=-1, keepdims=True) / math.log(2.0)
+        for lo, hi in itertools.pairwise(edges)
+    ]
     centres = 0.5 * (edges[:-1] + edges[1:] - 1)
-    j = np.arange(m, dtype=float)
-    right = np.clip(np.searchsorted(centres, j, side="right"), 1, nb - 1)
-    a = np.clip((j - centres[right - 1]) / (centres[right] - centres[right - 1]), 0.0, 1.0)
-    return np.asarray(med[..., right - 1] * (1.0 - a) + med[..., right] * a)
+    at = np.ceil(centres).astype(int)  # the first bin at or after each centre
+    out[..., : at[0]] = med[0]
+    for k in range(nb - 1):  # slice by slice: no temporary the size of the whole (the null's chunks)
+        a = (np.arange(at[k], at[k + 1]) - centres[k]) / (centres[k + 1] - centres[k])
+        out[..., at[k] : at[k + 1]] = med[k] * (1.0 - a) + med[k + 1] * a
+    out[..., at[-1] :] = med[-1]
+    return out
 
 
 # ± bins around a declared excitation line: a line of the record's length spans ±1 bin (its main
