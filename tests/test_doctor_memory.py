@@ -55,7 +55,7 @@ def test_the_line_scans_null_is_drawn_in_bounded_blocks() -> None:
     small = L.LineScan(f[:2001], scan.scan[:2001], 21)
     rng = np.random.default_rng(3)
     E = 2.0 * rng.exponential(size=(40, 2001))
-    whole = np.max((E * 2.0 / L.block_floor(E, 21))[:, small.scan], axis=1)
+    whole = np.max((E * 2.0 / L.local_level(E, 21))[:, small.scan], axis=1)
     assert np.array_equal(small.null_peaks(np.random.default_rng(3), 40), whole)
 
 

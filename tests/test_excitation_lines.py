@@ -97,8 +97,9 @@ def _case(seed: int, sigma_v: float, plant: dict[str, float], rps: float) -> M.C
 
 @pytest.mark.slow
 def test_a_closed_loop_null_at_identifys_line_and_a_mode_off_the_lines(tmp_path, no_gain) -> None:
-    """Closed-loop null seed 620054 (closedfa's seed-62 nulls): named `resonance` at 7.998 Hz,
-    identify's top multisine line, with the line stripped; `none` with it declared. A 3× mode at
+    """Closed-loop null seed 620054 (closedfa's seed-62 nulls): with the line stripped its line
+    scan peaks at 7.998 Hz, identify's top multisine line (named `resonance` before res17, under
+    the gate since); `none` with it declared. A 3× mode at
     49.61 Hz on a closed-loop identify run (matrix seed 710037) stays named with the lines declared."""
     plant = {"J": 1.68973e-4, "kv": 6.27519e-5, "R": 12.41348, "kM": 0.0234248, "tau_c": 5.90945e-4}
     case = _case(620054, 0.0838, plant, 10.0)
@@ -113,7 +114,12 @@ def test_a_closed_loop_null_at_identifys_line_and_a_mode_off_the_lines(tmp_path,
         "".join(ln for ln in text.splitlines(True) if not ln.startswith("# excitation_hz"))
     )
     stripped = diagnose(load(stripped_path, cfg), cfg.plant.v0)
-    assert stripped.cause == "resonance" and abs(float(stripped.effect["frequency_hz"]) - 8.0) < 0.1
+    # Named `resonance` at 7.998 Hz before res17: the line sits on its 2 Hz block's top bin, and
+    # read between the blocks' centres (linescan.local_level) it is z 1.9, under the gate
+    # (docs/measurements/res17.md §2); the declared lines stay the guard where it is not.
+    line = next(s for s in stripped.ranked if s.cause == "resonance")
+    assert abs(float(line.effect["frequency_hz"]) - 8.0) < 0.1
+    assert stripped.cause == "none"
     assert declared.cause == "none"
 
     plant = {"J": 3.47851e-5, "kv": 2.63440e-5, "R": 17.21675, "kM": 0.00415784, "tau_c": 1.71263e-4}

@@ -36,6 +36,7 @@ from tvsd.analysis.peak import (
     PEAK_WHITE_LR,
     fit_peak,
     fit_shapes,
+    on_segments,
     seen_height,
     shape_fits,
 )
@@ -143,7 +144,9 @@ def analyse(
     the rows' filters' power response (tvsd.analysis.rowgain.rows_gain), which takes the peak
     test to the band filter's corner (None: to half of it, where the filter is flat)."""
     f, p, segments = _welch(residual, rate_hz)
-    return spectrum_report(f, p, segments, J, band_hz, ljung_box(residual), floor, gain)
+    return on_segments(
+        spectrum_report(f, p, segments, J, band_hz, ljung_box(residual), floor, gain), residual
+    )
 
 
 def colour_test(
