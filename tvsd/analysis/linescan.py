@@ -66,9 +66,19 @@ class LineScan:
         # periodograms grows with the record (400 × 450 000 ordinates, 1.4 GB per array, on 1 h).
         chunk = max(1, min(NULL_CHUNK, NULL_CHUNK_VALUES // max(len(self.f), 1)))
         for lo in range(0, boot, chunk):
-            E = 2.0 * rng.exponential(size=(min(chunk, boot - lo), len(self.f)))
-            Z = E * 2.0 / np.maximum(block_floor(E, self.width), 1e-300)
-            peaks.append(np.max(Z[:, self.scan], axis=1))
+            # In place, the same operations in the same order (so the same bits): the block and
+            # its floor are the only block-sized arrays alive; the ratio's temporaries, the
+            # scanned part's copy and the previous block's ratio held 5 (76 MiB; memrate.md).
+            Z = rng.exponential(size=(min(chunk, boot - lo), len(self.f)))
+            Z *= 2.0
+            floor = block_floor(Z, self.width)
+            np.maximum(floor, 1e-300, out=floor)
+            Z *= 2.0
+            Z /= floor
+            del floor
+            Z[:, ~self.scan] = -np.inf  # positive ratios: the row's max is the scanned part's
+            peaks.append(np.max(Z, axis=1))
+            del Z
         return np.concatenate(peaks)
 
 
@@ -82,7 +92,8 @@ def block_floor(pgram: np.ndarray, width: int) -> np.ndarray:
     out = np.empty_like(pgram)
     for lo, hi in itertools.pairwise(edges):
         out[..., lo:hi] = np.median(pgram[..., lo:hi], axis=-1, keepdims=True)
-    return out / math.log(2.0)
+    out /= math.log(2.0)  # in place: a copy of a null block's size less at the null's peak
+    return out
 
 
 # ± bins around a declared excitation line: a line of the record's length spans ±1 bin (its main
