@@ -87,6 +87,8 @@ def test_doctor_long_reports_time_memory_and_the_estimate(capsys):
         assert got[f"{key}_wall_s"] > 0 and got[f"{key}_cpu_s"] > 0, got
         assert got[f"{key}_peak_rss_mib"] > got[f"{key}_base_anon_mib"] + got[f"{key}_doctor_mib"], got
         assert 0 < got[f"{key}_doctor_mib"] <= got[f"{key}_doctor_estimate_mib"], got
+        # its per-minute part (less the null) is positive and within the refusal's per-minute figure
+        assert 0 < got[f"{key}_mib_per_min"] <= got[f"{key}_estimate_mib_per_min"], got
 
 
 def test_doctor_sizes_are_checked():
@@ -141,3 +143,36 @@ def test_an_unreported_memory_figure_is_null_in_the_bench():
 
     assert bench._mib(math.nan, 0) is None and bench._mib(242.4, 0) == 242
     assert bench._mib(55.86, 1) == 55.9
+
+
+def test_memory_per_minute_is_the_analysis_own_not_the_page_cache():
+    """`mib_per_min` (the README's per-minute figure: how long a recording fits) comes from what
+    the analysis allocated — its anonymous memory above the imports, less the line scan's bounded
+    null — so two runs of one analysis whose shared-library pages differ (peak RSS 50 MiB apart,
+    as two venvs' were: memflake.md) give the same figure. It was (peak RSS − BASE_MIB) per
+    minute: +93 MiB/min in one venv and −61 in the other at 20 s (fails on ec4d41d's figure)."""
+    from tvsd.analysis import memory
+    from tvsd.analysis.benchchild import Child
+    from tvsd.analysis.prep import Band
+
+    seconds, rate = 600.0, 1000.0
+    runs = [Child(60.0, 55.0, rss, 82.0 + 500.0, 82.0) for rss in (760.0, 810.0)]
+    figures = [bench.long_figures("k", run, seconds, rate) for run in runs]
+    assert figures[0]["k_peak_rss_mib"] != figures[1]["k_peak_rss_mib"]
+    assert figures[0]["k_mib_per_min"] == figures[1]["k_mib_per_min"]
+    want = (500.0 - memory.null_mib(600_000, Band())) / 10.0
+    assert figures[0]["k_mib_per_min"] == pytest.approx(want, abs=0.05)  # rounded to 0.1 MiB
+    # the estimate's own per-minute figure, the refusal's "MiB per minute"
+    per_min = memory.copies_mib(60_000, rate, Band())
+    assert figures[0]["k_estimate_mib_per_min"] == pytest.approx(per_min, abs=0.05)
+
+
+def test_the_slope_between_the_two_longest_sizes_of_a_rate():
+    """doctor_mib's growth per minute between the two longest sizes of one rate; none from one
+    size or from a size whose figure is unknown (NaN: not reported)."""
+    import math
+
+    runs = [(60.0, 75.0), (600.0, 500.0), (1800.0, 1400.0), (3600.0, math.nan)]
+    assert bench.slope_figure(1000.0, runs) == {"doctor_long_1khz_slope_mib_per_min": 45.0}
+    assert bench.slope_figure(2000.0, [(120.0, 300.0)]) == {}
+    assert bench.slope_figure(2000.0, [(120.0, 300.0), (120.0, 310.0)]) == {}

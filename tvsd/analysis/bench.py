@@ -25,6 +25,7 @@ from pathlib import Path
 from statistics import median
 from typing import Any
 
+from tvsd.analysis.benchchild import Child
 from tvsd.analysis.benchchild import run_child as _child
 
 WARM_REPEATS = 3
@@ -201,19 +202,19 @@ def bench_long(
     sizes: tuple[tuple[float, float], ...] = LONG_SIZES, progress: Callable[[str], None] | None = None
 ) -> dict[str, Any]:
     """`tvsctl analyze` (warm: the kernels loaded from numba's cache, filled before the first)
-    on a SIL staircase with a 0.8 V dead zone per (seconds, Hz): wall, CPU, the child's own peak
-    RSS and the peak per minute above the interpreter's (tvsd.analysis.memory.BASE_MIB): what a
-    user sees. Beside them what the analysis itself allocated (`doctor_mib`: the peak of its
-    anonymous memory above the same process's once `tvsctl analyze`'s imports are done, which a
-    machine's page cache does not change) and the estimate of it (memory.doctor_mib), with the
-    whole estimate. One run each: the 1 h ones take minutes. A size the doctor refuses (not
-    enough memory) is reported with its reason."""
+    on a SIL staircase with a 0.8 V dead zone per (seconds, Hz): wall, CPU and the child's own
+    peak RSS (what a user sees), and what the analysis itself allocated (`doctor_mib`: the peak
+    of its anonymous memory above the same process's once `tvsctl analyze`'s imports are done,
+    which a machine's page cache does not change), per minute of recording too (long_figures),
+    each beside its estimate (tvsd.analysis.memory). One run each: the 1 h ones take minutes. A
+    size the doctor refuses (not enough memory) is reported with its reason."""
     from tvsd.analysis import memory
     from tvsd.analysis.prep import Band
 
     say = progress or (lambda _msg: None)
     cli = [sys.executable, "-m", "tvsd.cli.main"]
     out: dict[str, Any] = {"doctor_long_load_avg_at_start": round(os.getloadavg()[0], 1)}
+    measured: dict[float, list[tuple[float, float]]] = {}  # rate -> (seconds, doctor_mib)
     with tempfile.TemporaryDirectory() as tmp:
         env = {**os.environ, "NUMBA_CACHE_DIR": str(Path(tmp) / "numba-cache")}
         _child([sys.executable, "-c", _LOAD_KERNELS], env)  # compiles the kernels into the cache
@@ -232,10 +233,41 @@ def bench_long(
                 rec.unlink()
                 continue
             rec.unlink()
-            out[f"{key}_wall_s"] = round(run.wall_s, 2)
-            out[f"{key}_cpu_s"] = round(run.cpu_s, 2)
-            out[f"{key}_peak_rss_mib"] = _mib(run.peak_rss_mib, 0)
-            out[f"{key}_mib_per_min"] = _mib((run.peak_rss_mib - memory.BASE_MIB) / (seconds / 60.0), 1)
-            out[f"{key}_doctor_mib"] = _mib(run.own_mib, 1)
-            out[f"{key}_base_anon_mib"] = _mib(run.base_anon_mib, 1)
+            out.update(long_figures(key, run, seconds, rate))
+            measured.setdefault(rate, []).append((seconds, run.own_mib))
+    for rate, runs in measured.items():
+        out.update(slope_figure(rate, runs))
     return out
+
+
+def slope_figure(rate: float, runs: list[tuple[float, float]]) -> dict[str, float | None]:
+    """`doctor_mib`'s growth per minute between the two longest sizes measured at one rate: the
+    per-minute figure with nothing taken from the estimate (the null and the fixed parts cancel
+    once both sizes are past the null's bound, 40 s at 1 kHz); nothing from one size."""
+    runs = sorted(r for r in runs if math.isfinite(r[1]))
+    if len(runs) < 2 or runs[-1][0] == runs[-2][0]:
+        return {}
+    (s1, d1), (s2, d2) = runs[-2:]
+    return {f"doctor_long_{rate / 1000:g}khz_slope_mib_per_min": _mib((d2 - d1) / ((s2 - s1) / 60.0), 1)}
+
+
+def long_figures(key: str, run: Child, seconds: float, rate: float) -> dict[str, float | None]:
+    """One size's figures. `mib_per_min` is the part of the analysis's own allocation that grows
+    with the record, per minute: `doctor_mib` less the line scan's null (bounded whatever the
+    length; memory.null_mib, what tracemalloc measures of it), over the minutes — the figure that
+    says how long a recording fits in a given memory, beside the estimate's (the refusal's
+    "MiB per minute", memory.copies_mib). It was (peak RSS − memory.BASE_MIB) per minute, which
+    carries the page cache: +93 MiB/min in one venv and −61 in another at 20 s (memflake.md)."""
+    from tvsd.analysis import memory
+    from tvsd.analysis.prep import Band
+
+    n, minutes = round(seconds * rate), seconds / 60.0
+    return {
+        f"{key}_wall_s": round(run.wall_s, 2),
+        f"{key}_cpu_s": round(run.cpu_s, 2),
+        f"{key}_peak_rss_mib": _mib(run.peak_rss_mib, 0),
+        f"{key}_doctor_mib": _mib(run.own_mib, 1),
+        f"{key}_base_anon_mib": _mib(run.base_anon_mib, 1),
+        f"{key}_mib_per_min": _mib((run.own_mib - memory.null_mib(n, Band())) / minutes, 1),
+        f"{key}_estimate_mib_per_min": round(memory.copies_mib(n, rate, Band()) / minutes, 1),
+    }

@@ -23,9 +23,9 @@ from tvsd.errors import DataFileError
 
 BASE_MIB = 240.0  # the interpreter with numpy, scipy, numba, the kernels (232 MiB alone), small arrays
 COPIES = 5.0  # float64 copies of rows × columns at the peak: 3.8–5.5 measured (docmem.md)
-# float64 arrays of the line scan's null block alive at once (LineScan.null_peaks): the block, its
-# floor, the ratio's temporaries and the previous block's ratio (tracemalloc: 5.0 blocks' size)
-NULL_ARRAYS = 5.0
+# float64 arrays of the line scan's null block alive at once (LineScan.null_peaks, in place): the
+# block and its floor (tracemalloc: 2.00–2.02 blocks' size; 5.0 before memrate.md)
+NULL_ARRAYS = 2.0
 HEADROOM = 0.8  # of the memory available: the rest for the page cache and other processes
 
 
@@ -43,7 +43,7 @@ def rows(n_samples: int, band: Band) -> int:
 def null_mib(n_samples: int, band: Band) -> float:
     """The resonance scan's null: NULL_CHUNK periodograms of the rows' ordinates at a time, at most
     NULL_CHUNK_VALUES ordinates (linescan.null_peaks): it grows with the rows up to 40 s at 1 kHz
-    (76 MiB), then stays."""
+    (31 MiB), then stays."""
     ordinates = rows(n_samples, band) // 2 + 1
     per_block = max(1, min(L.NULL_CHUNK, L.NULL_CHUNK_VALUES // ordinates)) * ordinates
     return NULL_ARRAYS * 8.0 * per_block / 2**20
