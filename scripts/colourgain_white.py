@@ -14,9 +14,8 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
-
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -24,7 +23,7 @@ from tvsd.analysis import noise
 from tvsd.analysis.matrix import clopper_pearson
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-from test_colourgain import judge  # noqa: E402  (the tests' white files, judged as the doctor does)
+from test_colourgain import judge
 
 RATES = (100.0, 200.0, 500.0, 1000.0)
 SECONDS = (20.0, 60.0, 120.0, 300.0, 600.0)
@@ -45,7 +44,8 @@ def summary(path: Path) -> None:
             else:
                 pooled += ps
                 label = f"{f:g} Hz {s:g} s"
-            print(f"{label:>14} {len(ps):>4}  {_rate(ps, noise.COLOUR_P):<28} {_rate(ps, 0.05):<25} {np.median(ps):.3g}")
+            gate, five = _rate(ps, noise.COLOUR_P), _rate(ps, 0.05)
+            print(f"{label:>14} {len(ps):>4}  {gate:<28} {five:<25} {np.median(ps):.3g}")
 
 
 def _rate(ps: list[float], level: float) -> str:
@@ -65,7 +65,9 @@ def main() -> None:
         return
     done = set()
     if args.out.exists():
-        done = {(r["fs"], r["seconds"], r["seed"]) for r in map(json.loads, args.out.read_text().splitlines())}
+        done = {
+            (r["fs"], r["seconds"], r["seed"]) for r in map(json.loads, args.out.read_text().splitlines())
+        }
     with args.out.open("a") as fh:
         for fs in RATES:
             for seconds in SECONDS:

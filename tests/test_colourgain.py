@@ -63,7 +63,7 @@ def test_white_residuals_through_the_rows_filters_are_not_coloured(
     """600 s white residuals through the doctor's own filters (`judge`: scripts/colourgain_white.py's
     files, seeds 1000–1007: not the measurement's 0–29), judged as the doctor judges (with
     rows_gain). integ3 on the measurement's seeds: 500 Hz 29/30 under the gate, 200 Hz 28/30
-    under 0.05; here, 8 draws each: 8/8 and 8/8 before, 0/8 and ≤ 1/8 after."""
+    under 0.05; on these 8 draws each 7/8 and 7/8 (fails), after 0/30 and 0/30 (measurement)."""
     ps = [judge(fs, 600.0, seed)["p"] for seed in range(1000, 1000 + N_WHITE)]
     assert sum(p < level for p in ps) <= allowed, ps
 
