@@ -21,13 +21,6 @@ def _kept_for(mask: np.ndarray, order: int) -> np.ndarray:
     return keep
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="spectral_fit.refit fits delta and the held levels with AR(48) on the doctor's keep, "
-    "cleared for its AR(6): left-out rows reach the kept ones. Clearing 48 lags (gls-style) is the "
-    "fix, but it turned outsider null o14036 (500 Hz PRBS, 256 counts) colored_noise (p 1.0 -> "
-    "3.6e-4): a change to colour14's measured input, left for a null run (review6.md)",
-)
 def test_the_refit_ignores_the_rows_the_doctor_left_out(tmp_path: Path) -> None:
     """Open loop on a 256-count encoder: refit whitens with AR(FLOOR_AR_ORDER), longer than the
     doctor's AR whose memory `keep` was cleared for. The residual on the rows left out (the shaft

@@ -13,6 +13,12 @@ the count step and the recorded speed, no free parameter; zero when ω is not a 
 difference). A fitted f⁴ term made the outsider's encoder nulls flat but also bent the flat
 shape to tvsd's own 20 ms OU colour's roll-off (likelihood ratio 18.7 → 4.6, missed); a known
 floor cannot bend (docs/measurements/quantfloor.md).
+Both shapes are seen through the rows' filters' power response G(f) when the caller gives it
+(tvsd.analysis.rowgain: the band filter, the acceleration's central difference, the decimation's
+anti-alias): S(f) = G(f)·(raw shape) + F(f), F having G in it already. A white vibration reaches
+the rows as G, 0.87 at the band's top at 500 Hz (the central difference's sinc²); a flat shape
+without it read long white residuals as a low-pass (500 Hz, 600 s: 6/6 alarms,
+docs/measurements/colourgain.md).
 The Whittle sum treats every bin of every segment as independent; with a Hann window and 50 %
 overlap they are not (neighbouring bins and overlapping segments share data), so the ratio is
 scaled by the effective number of segments (`effective_segments`), not the count.
@@ -141,8 +147,9 @@ def analyse(
 ) -> NoiseReport:
     """The spectral tests on the residual rows; `floor`: the encoder quantisation's known PSD
     (tvsd.analysis.quantisation.floor), None when the speed is not a count difference; `gain`:
-    the rows' filters' power response (tvsd.analysis.rowgain.rows_gain), which takes the peak
-    test to the band filter's corner (None: to half of it, where the filter is flat)."""
+    the rows' filters' power response (tvsd.analysis.rowgain.rows_gain), through which both
+    tests' shapes are seen and which takes the peak test to the band filter's corner (None: the
+    shapes as they are, the peak test to half the corner, where the filter is flat)."""
     f, p, segments = _welch(residual, rate_hz)
     return on_segments(
         spectrum_report(f, p, segments, J, band_hz, ljung_box(residual), floor, gain), residual
@@ -150,14 +157,19 @@ def analyse(
 
 
 def colour_test(
-    residual: np.ndarray, rate_hz: float, band_hz: float, floor: Floor | None = None
+    residual: np.ndarray,
+    rate_hz: float,
+    band_hz: float,
+    floor: Floor | None = None,
+    gain: Gain | None = None,
 ) -> tuple[float, float]:
-    """The colour test alone (likelihood ratio, p-value; χ², 1 dof), without the peak's fits."""
+    """The colour test alone (likelihood ratio, p-value; χ², 1 dof), without the peak's fits;
+    through the rows' filters' `gain` when given (as `analyse`)."""
     f, p, segments = _welch(residual, rate_hz)
-    fm, pm, known, a0, b0 = _in_band(f, p, band_hz, floor)
+    fm, pm, known, a0, b0 = _in_band(f, p, band_hz, floor, gain)
     if len(fm) < MIN_SEEN_BINS:
         return 0.0, 1.0  # the band is the quantisation's: no colour can be told
-    white, best = _colour_fits(fm, pm, known, a0, b0)
+    white, best = _colour_fits(fm, pm, known, a0, b0, _gain_on(gain, fm))
     lr = max(0.0, 2 * effective_segments(segments, 2 * (len(f) - 1)) * (white.fun - best.fun))
     return lr, float(chi2.sf(lr, 1))
 
@@ -197,14 +209,20 @@ def band_top(f: np.ndarray, band_hz: float) -> float:
     return min(0.5 * band_hz, ANTIALIAS_CORNER * float(f[-1]) * (1 + 1e-9))
 
 
-def _slope(fm: np.ndarray, pm: np.ndarray, known: np.ndarray) -> float:
-    """A starting level for b (the f² term) from the band's top tenth, the known floor taken off."""
+def _slope(fm: np.ndarray, pm: np.ndarray, known: np.ndarray, gain: np.ndarray | float = 1.0) -> float:
+    """A starting level for b (the f² term) from the band's top tenth, the known floor taken off
+    (and the filters' gain, before which b is)."""
     k = max(3, len(pm) // 10)
-    return max(float(np.median((pm - known)[-k:])) / fm[-1] ** 2, 1e-30)
+    return max(float(np.median(((pm - known) / gain)[-k:])) / fm[-1] ** 2, 1e-30)
+
+
+def _gain_on(gain: Gain | None, fm: np.ndarray) -> np.ndarray | float:
+    """The filters' power response on the bins `fm` (1.0 without it: the shapes as they are)."""
+    return 1.0 if gain is None else np.asarray(gain(fm), dtype=float)
 
 
 def _in_band(
-    f: np.ndarray, p: np.ndarray, band_hz: float, floor: Floor | None = None
+    f: np.ndarray, p: np.ndarray, band_hz: float, floor: Floor | None = None, gain: Gain | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
     """The colour test's bins, the known floor on them, and starting levels for a and b. With a
     floor, the band ends where the floor first passes the flat level of the lowest bins: above,
@@ -216,13 +234,15 @@ def _in_band(
     fm, pm, known = fm[:cut], pm[:cut], known[:cut]
     if len(fm) < MIN_SEEN_BINS:
         return fm, pm, known, a0, 1e-30
-    return fm, pm, known, a0, _slope(fm, pm, known)
+    return fm, pm, known, a0, _slope(fm, pm, known, _gain_on(gain, fm))
 
 
-def _colour_fits(fm: np.ndarray, pm: np.ndarray, known: np.ndarray, a0: float, b0: float) -> tuple[Any, Any]:
-    """Whittle fits of the white and the coloured shape (scipy OptimizeResults): peak.shape_fits
-    with no filters' gain."""
-    return shape_fits(fm, pm, known, 1.0, a0, b0)
+def _colour_fits(
+    fm: np.ndarray, pm: np.ndarray, known: np.ndarray, a0: float, b0: float, gain: np.ndarray | float = 1.0
+) -> tuple[Any, Any]:
+    """Whittle fits of the white and the coloured shape (scipy OptimizeResults) through the
+    filters' `gain` on the bins: peak.shape_fits."""
+    return shape_fits(fm, pm, known, gain, a0, b0)
 
 
 def spectrum_report(
@@ -249,8 +269,9 @@ def spectrum_report(
     whole = None
     if cut >= MIN_SEEN_BINS:  # else the colour's band is the quantisation's: no colour is told
         fm, pm, known = fw[:cut], pw[:cut], kw[:cut]
-        b0 = _slope(fm, pm, known)
-        white, best = _colour_fits(fm, pm, known, a0, b0)
+        gm = _gain_on(gain, fm)  # both shapes as the rows' filters pass them: G·white is the null
+        b0 = _slope(fm, pm, known, gm)
+        white, best = _colour_fits(fm, pm, known, a0, b0, gm)
         # The colour's ratio on the effective segments (inflated ≈ 2.1× on the count: 11 of 300
         # open-loop nulls were false alarms, 6 of them colour, docs/measurements/doctor-false-alarms.md);
         # the peak's statistics keep the count: PEAK_WHITE_LR was calibrated on them.

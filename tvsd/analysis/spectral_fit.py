@@ -103,11 +103,27 @@ def refit(
     if floor is not None:
         ar = floor_whitening(flat_level(first, rate, floor, prep.band.cutoff_hz), floor, rate)
     Xe = np.column_stack([X, command_taps(prep)])
-    k = keep > 0
+    # `keep` was cleared for the doctor's AR; the floor's is longer, and its memory must not reach
+    # the rows left out (the shaft stuck, where the model does not hold) nor the record's start.
+    # The spectral tests then see those rows only: a row fitted on none of its own is extrapolated
+    # (the commands' and levels' filtered edges at a run's start are collinear elsewhere: o14036's
+    # first 48 rows at 1.3× the residual's rms, colour p 1.0 → 3e-4; colourgain.md)
+    k = clear_memory(keep, len(ar) - 1) if floor is not None else keep > 0
     if not np.any(k) or not np.all(np.isfinite(Xe[k])):
         return first, floor
     # y − X·θ refitted: the residual's own GLS fit on the extended columns is the change (linear)
     delta = gls(residual, Xe, ar, k).theta
     if not np.all(np.isfinite(delta)):
         return first, floor
-    return quantisation.gated(prep, keep, residual - Xe @ delta, rate, (Xe, ar))
+    return quantisation.gated(prep, k, residual - Xe @ delta, rate, (Xe, ar))
+
+
+def clear_memory(keep: np.ndarray, order: int) -> np.ndarray:
+    """The rows of `keep` whose AR(order) whitening holds no row out of it, nor the record's start
+    (as calibrate.test_all clears its rows for the doctor's AR)."""
+    out = np.asarray(keep) > 0
+    mask = out.copy()
+    for lag in range(1, min(order, len(mask)) + 1):
+        out[lag:] &= mask[:-lag]
+    out[:order] = False
+    return out
