@@ -236,12 +236,14 @@ def test_start_returns_once_a_state_frame_is_in_so_a_first_command_cannot_latch(
 
 def test_an_mcu_that_sends_no_state_frame_fails_the_start_with_one_clear_error(runner: Runner) -> None:
     """No state frame within mcu.link_lost_ms after the handshake: start raises DeviceError
-    saying what was missing and what to do, and leaves no link open."""
+    saying what was missing and what to do, and leaves no link open: the kernel's heartbeats
+    detached from it (they had been attached before the wait)."""
 
     async def main() -> None:
         with pytest.raises(DeviceError, match=r"sent no state frame within 1000 ms \(mcu\.link_lost_ms\)"):
             async with drive_on_pty(runner, states_after_s=60.0):
                 pass
+        assert not runner.heartbeat_stats().on
 
     asyncio.run(main())
 

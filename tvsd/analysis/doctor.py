@@ -152,9 +152,10 @@ def _diagnose(
     if data is not recorded:  # read through the encoder: the recording's own speed must move too
         excitation.check_recorded(prepare(recorded, band), prep, design.X.shape[1])
     if heldout is not None:  # judged on: a stuck held-out file would judge the model on noise
-        excitation.check_moving(prepare(heldout, band), design.X.shape[1])
+        heldout_prep = prepare(heldout, band)
+        excitation.check_moving(heldout_prep, design.X.shape[1])
         if heldout is not recorded_heldout and recorded_heldout is not None:
-            excitation.check_recorded(prepare(recorded_heldout, band), prep, design.X.shape[1])
+            excitation.check_recorded(prepare(recorded_heldout, band), heldout_prep, design.X.shape[1])
     measured = design
     if iv and instrument.excited(data):  # closed loop, excited: 2SLS (opt-in,
         # docs/measurements/doctor-closed.md)

@@ -128,8 +128,9 @@ def fit_shapes(
 def shape_fits(
     fm: np.ndarray, pm: np.ndarray, known: np.ndarray, gain: np.ndarray | float, a0: float, b0: float
 ) -> tuple[Any, Any]:
-    """Whittle fits of the white (flat + f²) and the low-pass shape through `gain` (1: the colour
-    test's, tvsd.analysis.noise) plus the known floor, from the levels a0, b0 (scipy
+    """Whittle fits of the white (flat + f²) and the low-pass shape through `gain` (the rows'
+    filters' power response, tvsd.analysis.rowgain: the peak test's and, since colourgain, the
+    colour test's, tvsd.analysis.noise) plus the known floor, from the levels a0, b0 (scipy
     OptimizeResults)."""
     white = minimize(
         _whittle_shape, [math.log(a0), math.log(b0)], args=(fm, pm, known, gain), method="Nelder-Mead"

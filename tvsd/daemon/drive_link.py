@@ -202,8 +202,7 @@ class DriveLink:
         deadline = time.monotonic() + bound_ms * 1e-3
         while math.isnan(self.last_state_host):  # set after the frame is handed to the runner
             if time.monotonic() > deadline:
-                self.link = None
-                await link.close()
+                await self.close()  # the kernel's heartbeats detached too, PWM 0 and laser off
                 raise DeviceError(
                     f"the MCU on {link.settings.port} answered the handshake but sent no state frame "
                     f"within {bound_ms:g} ms (mcu.link_lost_ms): its firmware does not stream the "
