@@ -3,6 +3,7 @@ on every Welch segment (integ3), on the segments' equal-level equivalent (peak.s
 on the rows from the first kept one only (the left-out start cut off, not only rescaled).
 
     python scripts/colourseg_probe.py FILE.csv [...]
+    python scripts/colourseg_probe.py --scan FILE.csv   # also with the left-out start cut away bit by bit
 
 The doctor runs in-process; its residual rows are read where it hands them to noise.analyse (this
 script wraps that name in the doctor module; library code is not changed)."""
@@ -61,5 +62,30 @@ def main(paths: list[str]) -> None:
         )
 
 
+def scan(path: str) -> None:
+    """The counts as the left-out start is cut away 500 rows at a time (zeros kept from row j),
+    then as the kept rows are cut from their first 0–2000 rows on (the segments' alignment)."""
+    s = rows_of(path)
+    r, rate, band, floor, gain = (s[k] for k in ("resid", "rate", "band", "floor", "gain"))
+    nper = min(len(r), int(noise.SEGMENT_S * rate))
+    first = int(np.argmax(r != 0))
+    for j in [*range(0, first, 500), *(first + k for k in range(0, 2001, 250))]:
+        x = r[j:]
+        scale = len(r) / len(x)
+        kept = None if floor is None else (lambda f, q=floor, c=scale: q(f) * c)
+        lr, _ = noise.colour_test(x, rate, band, kept, gain)
+        worth = noise.rows_worth(x, nper)
+        count = noise.effective_segments(2 * len(x) // nper - 1, nper)
+        share = peak.segment_share(x, nper)
+        print(
+            f"from row {j} ({'zeros kept' if j < first else 'kept rows only'}): ratio on the count "
+            f"{lr / worth * count:.2f}, ×share {lr / worth * count * share:.2f}, on the rows {lr:.2f}"
+        )
+
+
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    if sys.argv[1:2] == ["--scan"]:
+        for one in sys.argv[2:]:
+            scan(one)
+    else:
+        main(sys.argv[1:])
