@@ -21,7 +21,9 @@ without it read long white residuals as a low-pass (500 Hz, 600 s: 6/6 alarms,
 docs/measurements/colourgain.md).
 The Whittle sum treats every bin of every segment as independent; with a Hann window and 50 %
 overlap they are not (neighbouring bins and overlapping segments share data), so the ratio is
-scaled by the effective number of segments (`effective_segments`), not the count.
+scaled by the effective number of segments (`effective_segments`), not the count; and that number
+is read on the rows' own levels (`rows_worth`): rows left out as zeros add segments that hold no
+data (docs/measurements/colourseg.md).
 The one-peak fit over the whole band (a structural mode) is tvsd.analysis.peak's; `spectrum_report`
 runs both tests, `spectral_cause` judges the two.
 """
@@ -137,6 +139,39 @@ def effective_segments(segments: int, nper: int) -> float:
     return float(k * k * w2.sum() ** 2 / (nper * np.sum(W * W)))
 
 
+def rows_worth(residual: np.ndarray, nper: int) -> float:
+    """`effective_segments` on the rows' own levels: what a Whittle sum over the Welch spectrum of
+    `residual` (Hann, 50 % overlap, `nper`) is worth when its rows differ in variance v(t) — rows
+    left out as zeros where the shaft was stuck, a ramp at a gap, a staircase level noisier than
+    another.
+
+    The same smooth functional Σ W(t)·x(t)² has mean ∝ Σ W·v and variance ∝ Σ W²·v², so the
+    count is (Σ W·v)² / (nper·Σ W²·v²): effective_segments when v is one level. Counted on K the
+    ratio was inflated by the left-out share (a white residual with its first 20–50 % left out:
+    `tests/test_colour_segments.py`); the segments' own levels (peak.segment_share's (Σl)²/Σl²)
+    miss the overlap's share of the zero segments (o17001's ratio still fell 11.1 → 9.2 as
+    its left-out rows were cut away: docs/measurements/colourseg.md). v is the rows' power
+    averaged over a quarter segment: its sampling scatter (2/(nper/4): 0.4 % on 2000 rows)
+    biases the count by that much, and a step in v is followed to within nper/8 rows."""
+    x = np.asarray(residual, dtype=float)
+    n = len(x)
+    nper = max(1, min(int(nper), n))
+    step = nper - nper // 2
+    k = max(1, (n - nper) // step + 1)
+    w2 = get_window("hann", nper) ** 2 if nper > 1 else np.ones(1)
+    W = np.zeros(n)
+    for i in range(k):
+        W[i * step : i * step + nper] += w2
+    m = max(1, nper // 4)
+    box = np.ones(m)
+    # the mean over the rows in the box: at the record's ends it holds fewer
+    v = np.convolve((x - x.mean()) ** 2, box, mode="same") / np.convolve(np.ones(n), box, mode="same")
+    total = float(np.sum((W * v) ** 2))
+    if total <= 0:
+        return effective_segments(k, nper)
+    return float(np.sum(W * v) ** 2 / (nper * total))
+
+
 def analyse(
     residual: np.ndarray,
     rate_hz: float,
@@ -151,8 +186,9 @@ def analyse(
     tests' shapes are seen and which takes the peak test to the band filter's corner (None: the
     shapes as they are, the peak test to half the corner, where the filter is flat)."""
     f, p, segments = _welch(residual, rate_hz)
+    worth = rows_worth(residual, 2 * (len(f) - 1))
     return on_segments(
-        spectrum_report(f, p, segments, J, band_hz, ljung_box(residual), floor, gain), residual
+        spectrum_report(f, p, segments, J, band_hz, ljung_box(residual), floor, gain, worth), residual
     )
 
 
@@ -165,12 +201,12 @@ def colour_test(
 ) -> tuple[float, float]:
     """The colour test alone (likelihood ratio, p-value; χ², 1 dof), without the peak's fits;
     through the rows' filters' `gain` when given (as `analyse`)."""
-    f, p, segments = _welch(residual, rate_hz)
+    f, p, _ = _welch(residual, rate_hz)
     fm, pm, known, a0, b0 = _in_band(f, p, band_hz, floor, gain)
     if len(fm) < MIN_SEEN_BINS:
         return 0.0, 1.0  # the band is the quantisation's: no colour can be told
     white, best = _colour_fits(fm, pm, known, a0, b0, _gain_on(gain, fm))
-    lr = max(0.0, 2 * effective_segments(segments, 2 * (len(f) - 1)) * (white.fun - best.fun))
+    lr = max(0.0, 2 * rows_worth(residual, 2 * (len(f) - 1)) * (white.fun - best.fun))
     return lr, float(chi2.sf(lr, 1))
 
 
@@ -254,9 +290,12 @@ def spectrum_report(
     lb_p: float = math.nan,
     floor: Floor | None = None,
     gain: Gain | None = None,
+    worth: float | None = None,
 ) -> NoiseReport:
     """The spectral tests on a Welch spectrum (f, p) of `segments` segments (a stored spectrum
-    can be re-judged without its residual). The colour test stops where the quantisation's floor
+    can be re-judged without its residual); `worth`: what the colour's Whittle sum is worth in
+    segments (`rows_worth` of the residual; None: `effective_segments` of the count, the rows'
+    level taken as one). The colour test stops where the quantisation's floor
     passes the flat level (`_in_band`); the peak test runs over the whole band with the floor in
     its model (a peak must stand PEAK_FLOOR_C× above it: `spectral_cause`); with the filters'
     `gain`, over the band the filters pass (`_peak_fits`)."""
@@ -275,7 +314,9 @@ def spectrum_report(
         # The colour's ratio on the effective segments (inflated ≈ 2.1× on the count: 11 of 300
         # open-loop nulls were false alarms, 6 of them colour, docs/measurements/doctor-false-alarms.md);
         # the peak's statistics keep the count: PEAK_WHITE_LR was calibrated on them.
-        lr = max(0.0, 2 * effective_segments(segments, 2 * (len(f) - 1)) * (white.fun - best.fun))
+        if worth is None:
+            worth = effective_segments(segments, 2 * (len(f) - 1))
+        lr = max(0.0, 2 * worth * (white.fun - best.fun))
         tau = math.exp(best.x[2])
         # White Δv of intensity σv (eq. 12): one-sided PSD of J·Δv is 2·J²·σv².
         sigma_v = math.sqrt(math.exp(white.x[0]) / 2) / J if J > 0 else math.nan
