@@ -18,6 +18,7 @@ from scipy.stats import binom
 
 from tvsd.analysis import noise, spectral_fit
 from tvsd.analysis.dataset import ROTARY, Dataset
+from tvsd.analysis.gls import clear_memory
 from tvsd.analysis.prep import Band, Prepared, prepare
 from tvsd.analysis.rowgain import rows_gain
 
@@ -68,15 +69,6 @@ def test_white_residuals_through_the_rows_filters_are_not_coloured(
     assert sum(p < level for p in ps) <= allowed, ps
 
 
-def _kept_for(mask: np.ndarray, order: int) -> np.ndarray:
-    """calibrate.test_all's rows: in `mask`, and no row out of it in an AR(order)'s memory."""
-    keep = mask.copy()
-    for lag in range(1, order + 1):
-        keep[lag:] &= mask[:-lag]
-    keep[:order] = False
-    return keep
-
-
 def test_rows_left_out_do_not_reach_the_spectral_rows(tmp_path: Path) -> None:
     """A randomised family of gaps (6 draws: 1–4 gaps of 5–80 rows anywhere, a random residual
     and columns) on a 256-count encoder file, whose floor gives refit its AR(48). Changing the
@@ -96,11 +88,11 @@ def test_rows_left_out_do_not_reach_the_spectral_rows(tmp_path: Path) -> None:
         for _ in range(int(g.integers(1, 5))):
             start, length = int(g.integers(0, n - 80)), int(g.integers(5, 81))
             moving[start : start + length] = False
-        keep = _kept_for(moving, len(ar) - 1)
+        keep = clear_memory(moving, len(ar) - 1)
         resid, X = g.standard_normal(n), g.standard_normal((n, 4))
         r0, floor = spectral_fit.refit(prep, keep, resid, rate, (X, ar))
         assert floor is not None  # the floor's AR(48) is the one under test
-        fitted = _kept_for(keep, spectral_fit.FLOOR_AR_ORDER)
+        fitted = clear_memory(keep, spectral_fit.FLOOR_AR_ORDER)
         unfitted.append(int(np.count_nonzero(r0[~fitted])))
         stuck = resid.copy()
         stuck[~moving] += 1e3

@@ -9,16 +9,8 @@ import outsider_classes as fam
 import pytest
 
 from tvsd.analysis import spectral_fit
+from tvsd.analysis.gls import clear_memory
 from tvsd.analysis.prep import Band, prepare
-
-
-def _kept_for(mask: np.ndarray, order: int) -> np.ndarray:
-    """calibrate.test_all's rows: in `mask`, and no row out of it in an AR(order)'s memory."""
-    keep = mask.copy()
-    for lag in range(1, order + 1):
-        keep[lag:] &= mask[:-lag]
-    keep[:order] = False
-    return keep
 
 
 def test_the_refit_ignores_the_rows_the_doctor_left_out(tmp_path: Path) -> None:
@@ -34,7 +26,7 @@ def test_the_refit_ignores_the_rows_the_doctor_left_out(tmp_path: Path) -> None:
     moving = np.ones(n, dtype=bool)
     moving[n // 3 : n // 3 + 50] = False
     ar = np.array([1.0, -0.5])
-    keep = _kept_for(moving, len(ar) - 1)
+    keep = clear_memory(moving, len(ar) - 1)
     resid, X = g.standard_normal(n), g.standard_normal((n, 4))
     rate = 1.0 / float(np.median(np.diff(prep.t_rows)))
     r0, f0 = spectral_fit.refit(prep, keep, resid, rate, (X, ar))

@@ -43,7 +43,7 @@ import numpy as np
 
 from tvsd.analysis import level_nuisance
 from tvsd.analysis.design import Design, Option
-from tvsd.analysis.gls import ar_filter, orth, whiten
+from tvsd.analysis.gls import ar_filter, clear_memory, orth, whiten
 from tvsd.analysis.linescan import RES_BAND, block_floor, excitation_rows, line_scan, refine_frequency
 
 AR_ORDER = 6
@@ -88,10 +88,7 @@ def test_all(design: Design, seed: int = 0, boot: int = BOOTSTRAP, alpha: float 
     r = np.where(m, design.y - design.X @ theta, 0.0)
     a = ar_filter(r[m], AR_ORDER)
     # Rows used: moving, and the filter's memory holds no stuck row.
-    keep = m.copy()
-    for lag in range(1, len(a)):
-        keep[lag:] &= m[:-lag]
-        keep[:lag] = False
+    keep = clear_memory(m, len(a) - 1)
     y = whiten(design.y, a, keep)
     X = whiten(design.X, a, keep)
     n = len(y)

@@ -73,3 +73,15 @@ def orth(W: np.ndarray, Q0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     q, r = np.linalg.qr(W)
     good = np.abs(np.diag(r)) > 1e-9 * max(float(np.max(np.abs(np.diag(r)))), 1e-300)
     return q[:, good], W
+
+
+def clear_memory(keep: np.ndarray, order: int) -> np.ndarray:
+    """The rows of `keep` whose AR(order) whitening holds no row out of it, nor the record's
+    start: the rows a whitened fit may use (calibrate.test_all for the doctor's AR,
+    spectral_fit.refit for the floor's AR(48))."""
+    out = np.asarray(keep) > 0
+    mask = out.copy()
+    for lag in range(1, min(order, len(mask)) + 1):
+        out[lag:] &= mask[:-lag]
+    out[:order] = False
+    return out

@@ -38,7 +38,7 @@ from scipy.signal import welch
 
 from tvsd.analysis import quantisation
 from tvsd.analysis.design import _shift
-from tvsd.analysis.gls import gls
+from tvsd.analysis.gls import clear_memory, gls
 from tvsd.analysis.noise import BAND_LOW_HZ, band_top
 from tvsd.analysis.prep import Prepared
 from tvsd.analysis.quantisation import Floor
@@ -116,14 +116,3 @@ def refit(
     if not np.all(np.isfinite(delta)):
         return first, floor
     return quantisation.gated(prep, k, residual - Xe @ delta, rate, (Xe, ar))
-
-
-def clear_memory(keep: np.ndarray, order: int) -> np.ndarray:
-    """The rows of `keep` whose AR(order) whitening holds no row out of it, nor the record's start
-    (as calibrate.test_all clears its rows for the doctor's AR)."""
-    out = np.asarray(keep) > 0
-    mask = out.copy()
-    for lag in range(1, min(order, len(mask)) + 1):
-        out[lag:] &= mask[:-lag]
-    out[:order] = False
-    return out
