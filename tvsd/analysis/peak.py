@@ -164,7 +164,9 @@ def segment_share(residual: np.ndarray, nper: int) -> float:
     on K is that much too large: a white residual with its first 40 % left out read twice the
     peak ratio of the whole record (median 17.4 against 9.5, 2 of 100 above PEAK_WHITE_LR,
     docs/measurements/res17.md). 1 for equal levels, to within the levels' own sampling scatter
-    (≈ 1/nper: 0.1 % on the doctor's 1000-row segments)."""
+    (≈ 4/nper: 0.4 % on white noise in 1000-row segments); a stationary narrow mode's own
+    segment-to-segment scatter lowers it too (0.6–0.94 on pure modes of Q 200–5, 0.99 with the
+    mode at 0.3 of the noise: the review in docs/measurements/session8.md)."""
     n = len(residual)
     nper = max(1, min(int(nper), n))
     step = nper - nper // 2
