@@ -17,13 +17,14 @@ simulation is skipped (it runs after the answer).
 
 from __future__ import annotations
 
-import glob
 import json
 import math
 import sys
 import time
 from pathlib import Path
 from typing import Any
+
+import jsonl_rows
 
 from tvsd.analysis.matrix import clopper_pearson
 
@@ -92,12 +93,7 @@ def run(out: Path, kind: str, files: list[str]) -> None:
 
 
 def summary(pattern: str) -> None:
-    rows = [
-        json.loads(x)
-        for f in sorted(glob.glob(pattern))
-        for x in Path(f).read_text().splitlines()
-        if x.strip()
-    ]
+    rows = jsonl_rows.rows(pattern)
     rows = list({r["name"]: r for r in rows}.values())
     nulls = [r for r in rows if r["cause"] == "none"]
     res: dict[str, Any] = {"rows": len(rows), "nulls": len(nulls)}

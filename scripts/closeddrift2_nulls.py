@@ -23,13 +23,14 @@ steps test again) — otherwise it is the same computation and its answer is cop
 
 from __future__ import annotations
 
-import glob
 import json
 import math
 import sys
 import time
 from pathlib import Path
 from typing import Any
+
+import jsonl_rows
 
 from tvsd.analysis.matrix import clopper_pearson
 
@@ -207,12 +208,7 @@ def second_filters(out: Path, shard: str, most: int) -> None:
 
 
 def summary(pattern: str) -> None:
-    rows = [
-        json.loads(x)
-        for f in sorted(glob.glob(pattern))
-        for x in Path(f).read_text().splitlines()
-        if x.strip()
-    ]
+    rows = jsonl_rows.rows(pattern)
     rows = list({r.get("seed", r.get("name")): r for r in rows}.values())  # a seed judged twice once
     nulls = [r for r in rows if r.get("cause", "none") == "none"]
     effects = [r for r in rows if r.get("cause", "none") != "none"]

@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import jsonl_rows
+
 from tvsd.analysis.matrix import clopper_pearson
 
 SOURCES = {
@@ -68,12 +70,7 @@ def run(kind: str, out: Path, shard: str, most: int) -> None:
 
 
 def summary(pattern: str) -> None:
-    rows = [
-        json.loads(x)
-        for f in sorted(glob.glob(pattern))
-        for x in Path(f).read_text().splitlines()
-        if x.strip()
-    ]
+    rows = jsonl_rows.rows(pattern)
     judged = [r for r in rows if not r["found"].startswith("error")]
     named = [r for r in judged if r["found"] != "none"]
     colour = [r for r in judged if r["found"] == "colored_noise"]
