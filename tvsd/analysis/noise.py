@@ -47,6 +47,7 @@ from tvsd.analysis.peak import (
     on_segments,
     seen_height,
     shape_fits,
+    welch_layout,
 )
 from tvsd.analysis.prep import ANTIALIAS_CORNER
 from tvsd.analysis.quantisation import Floor
@@ -155,9 +156,7 @@ def rows_worth(residual: np.ndarray, nper: int) -> float:
     biases the count by that much, and a step in v is followed to within nper/8 rows."""
     x = np.asarray(residual, dtype=float)
     n = len(x)
-    nper = max(1, min(int(nper), n))
-    step = nper - nper // 2
-    k = max(1, (n - nper) // step + 1)
+    nper, step, k = welch_layout(n, nper)
     w2 = get_window("hann", nper) ** 2 if nper > 1 else np.ones(1)
     W = np.zeros(n)
     for i in range(k):

@@ -153,6 +153,14 @@ def seen_height(fw: np.ndarray, f0: float, q: float, height: float, enbw: float)
     return min(on_bins, height * min(1.0, math.pi * f0 / (2 * q) / enbw))
 
 
+def welch_layout(n: int, nper: int) -> tuple[int, int, int]:
+    """scipy's welch segments of `n` rows (Hann, 50 % overlap): the segment length (at most n),
+    the step between starts and the count."""
+    nper = max(1, min(int(nper), n))
+    step = nper - nper // 2
+    return nper, step, max(1, (n - nper) // step + 1)
+
+
 def segment_share(residual: np.ndarray, nper: int) -> float:
     """(Σ l_k)² / (K·Σ l_k²) over the K Welch segments (Hann, 50 % overlap, `nper` samples, each
     less its mean: scipy's welch) of the residual rows, l_k each segment's windowed power.
@@ -167,10 +175,7 @@ def segment_share(residual: np.ndarray, nper: int) -> float:
     (≈ 4/nper: 0.4 % on white noise in 1000-row segments); a stationary narrow mode's own
     segment-to-segment scatter lowers it too (0.6–0.94 on pure modes of Q 200–5, 0.99 with the
     mode at 0.3 of the noise: the review in docs/measurements/session8.md)."""
-    n = len(residual)
-    nper = max(1, min(int(nper), n))
-    step = nper - nper // 2
-    k = max(1, (n - nper) // step + 1)
+    nper, step, k = welch_layout(len(residual), nper)
     window = get_window("hann", nper) if nper > 1 else np.ones(1)
     levels = np.empty(k)
     for i in range(k):
